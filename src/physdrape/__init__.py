@@ -1,0 +1,7 @@
+"""PhysDrape: drape a 3-D garment onto a human body of any shape and pose.
+
+One network pass plus a few explicit physics steps (the PhysDrape paper), on a free body model.
+Conventions (see DESIGN.md): SI units, world frame y-up, metres; the dtype follows the input.
+"""
+
+__version__ = "0.1.0"

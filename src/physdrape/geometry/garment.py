@@ -1,0 +1,208 @@
+"""Garment rest state: the static, per-mesh quantities the physics and the network read.
+
+A `Garment` is one template mesh in its rest state (on the canonical body). A `GarmentBatch`
+packs several garments of different sizes into one set of tensors (vertices of garment g at rows
+`vert_offsets[g]:vert_offsets[g + 1]`, indices shifted accordingly), so every physics function
+runs on one garment or many with the same code. Positions x are state and live elsewhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from physdrape.geometry import topology
+from physdrape.geometry.mesh import check_mesh
+
+
+def rest_frames(rest: Tensor, faces: Tensor) -> tuple[Tensor, Tensor]:
+    """Per-face inverse rest matrices Dm⁻¹ and rest areas.
+
+    Dm holds the two edge vectors (x1 − x0, x2 − x0) of the rest triangle in an orthonormal 2-D
+    frame of that triangle (first axis along x1 − x0).
+
+    Args:
+        rest: rest positions [m], shape (V, 3).
+        faces: shape (F, 3) int64.
+    Returns:
+        rest_inv: Dm⁻¹ [1/m], shape (F, 2, 2); rest_area: [m²], shape (F,).
+    """
+    x0, x1, x2 = rest[faces[:, 0]], rest[faces[:, 1]], rest[faces[:, 2]]
+    e1, e2 = x1 - x0, x2 - x0
+    normal = torch.linalg.cross(e1, e2)
+    double_area = normal.norm(dim=-1)
+    len1 = e1.norm(dim=-1)
+    u = e1 / len1[:, None]
+    v = torch.linalg.cross(normal / double_area[:, None], u)
+    dm = torch.stack(
+        [torch.stack([len1, (e2 * u).sum(-1)], -1), torch.stack([torch.zeros_like(len1), (e2 * v).sum(-1)], -1)],
+        dim=-2,
+    )
+    return torch.linalg.inv(dm), 0.5 * double_area
+
+
+def vertex_normals(x: Tensor, faces: Tensor) -> Tensor:
+    """Area-weighted unit vertex normals, x of shape (..., V, 3) → (..., V, 3).
+
+    Follows the faces' winding (counter-clockwise seen from the side the normal points to).
+    A vertex in no face gets a zero normal.
+    """
+    x0, x1, x2 = x[..., faces[:, 0], :], x[..., faces[:, 1], :], x[..., faces[:, 2], :]
+    face_n = torch.linalg.cross(x1 - x0, x2 - x0)  # length = 2 × area: area weighting
+    normals = torch.zeros_like(x)
+    flat = faces.reshape(-1)
+    normals.index_add_(-2, flat, face_n.repeat_interleave(3, dim=-2))
+    return normals / normals.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+
+
+@dataclass(frozen=True)
+class Garment:
+    """One garment template in its rest state (numpy-free, in one dtype).
+
+    Attributes:
+        rest: rest vertex positions [m], shape (V, 3).
+        faces: triangles, shape (F, 3) int64.
+        edges: undirected edges (i < j), shape (E, 2) int64.
+        hinges: interior hinges [v0, v1 shared edge, v2, v3 opposite], shape (H, 4) int64.
+        rest_inv: Dm⁻¹ per face [1/m], shape (F, 2, 2).
+        rest_area: rest face areas [m²], shape (F,).
+        boundary_loops: the garment's openings, each a loop of vertex indices.
+        name: a label for messages.
+    """
+
+    rest: Tensor
+    faces: Tensor
+    edges: Tensor
+    hinges: Tensor
+    rest_inv: Tensor
+    rest_area: Tensor
+    boundary_loops: tuple[Tensor, ...]
+    name: str = "garment"
+
+    @staticmethod
+    def from_mesh(verts, faces, *, name: str = "garment", dtype: torch.dtype = torch.float64) -> "Garment":
+        """Validate a template mesh (see `check_mesh`) and compute its rest-state quantities.
+
+        Args:
+            verts: rest positions [m], array-like of shape (V, 3).
+            faces: triangles, array-like of shape (F, 3).
+            dtype: floating dtype of the returned tensors.
+        """
+        verts_np = np.asarray(verts.detach().cpu() if isinstance(verts, Tensor) else verts, dtype=np.float64)
+        faces_np = np.asarray(faces.detach().cpu() if isinstance(faces, Tensor) else faces)
+        check_mesh(verts_np, faces_np, name=name)
+        faces_np = faces_np.astype(np.int64)
+        rest64 = torch.from_numpy(verts_np)
+        faces_t = torch.from_numpy(faces_np)
+        rest_inv, rest_area = rest_frames(rest64, faces_t)
+        return Garment(
+            rest=rest64.to(dtype),
+            faces=faces_t,
+            edges=torch.from_numpy(topology.undirected_edges(faces_np)),
+            hinges=torch.from_numpy(topology.interior_hinges(faces_np)),
+            rest_inv=rest_inv.to(dtype),
+            rest_area=rest_area.to(dtype),
+            boundary_loops=tuple(torch.from_numpy(loop) for loop in topology.boundary_loops(faces_np)),
+            name=name,
+        )
+
+    @property
+    def num_verts(self) -> int:
+        return self.rest.shape[0]
+
+    @property
+    def num_faces(self) -> int:
+        return self.faces.shape[0]
+
+    def to(self, dtype: torch.dtype) -> "Garment":
+        """The same garment with floating tensors in `dtype`."""
+        return replace(self, rest=self.rest.to(dtype), rest_inv=self.rest_inv.to(dtype), rest_area=self.rest_area.to(dtype))
+
+
+@dataclass(frozen=True)
+class GarmentBatch:
+    """Several garments packed into one mesh with per-garment offsets.
+
+    Attributes (Σ over the garments of the batch):
+        rest: (ΣV, 3) [m]; faces: (ΣF, 3); edges: (ΣE, 2); hinges: (ΣH, 4); all indices global.
+        edge_index: both directions of every edge, (2, 2ΣE), row 0 = sender.
+        rest_inv: (ΣF, 2, 2) [1/m]; rest_area: (ΣF,) [m²].
+        vert_garment, face_garment, hinge_garment: owning garment of each element, int64.
+        vert_offsets: (G + 1,) first vertex of each garment, last entry ΣV.
+        garments: the unpacked garments, in order.
+    """
+
+    rest: Tensor
+    faces: Tensor
+    edges: Tensor
+    edge_index: Tensor
+    hinges: Tensor
+    rest_inv: Tensor
+    rest_area: Tensor
+    vert_garment: Tensor
+    face_garment: Tensor
+    hinge_garment: Tensor
+    vert_offsets: Tensor
+    garments: tuple[Garment, ...]
+
+    @staticmethod
+    def pack(garments) -> "GarmentBatch":
+        """Pack garments (a sequence of `Garment`, or a single one) into one batch."""
+        if isinstance(garments, Garment):
+            garments = [garments]
+        garments = tuple(garments)
+        if not garments:
+            raise ValueError("GarmentBatch.pack needs at least one garment")
+        dtypes = {g.rest.dtype for g in garments}
+        if len(dtypes) > 1:
+            raise ValueError(f"garments of one batch must share a dtype, got {sorted(map(str, dtypes))}")
+        counts = torch.tensor([g.num_verts for g in garments])
+        offsets = torch.cat([torch.zeros(1, dtype=torch.int64), counts.cumsum(0)])
+
+        def cat_indices(name: str) -> Tensor:
+            return torch.cat([getattr(g, name) + offsets[k] for k, g in enumerate(garments)])
+
+        def owner(name: str) -> Tensor:
+            sizes = torch.tensor([getattr(g, name).shape[0] for g in garments])
+            return torch.repeat_interleave(torch.arange(len(garments)), sizes)
+
+        edges = cat_indices("edges")
+        return GarmentBatch(
+            rest=torch.cat([g.rest for g in garments]),
+            faces=cat_indices("faces"),
+            edges=edges,
+            edge_index=torch.cat([edges.T, edges.flip(1).T], dim=1),
+            hinges=cat_indices("hinges"),
+            rest_inv=torch.cat([g.rest_inv for g in garments]),
+            rest_area=torch.cat([g.rest_area for g in garments]),
+            vert_garment=owner("rest"),
+            face_garment=owner("faces"),
+            hinge_garment=owner("hinges"),
+            vert_offsets=offsets,
+            garments=garments,
+        )
+
+    @property
+    def num_garments(self) -> int:
+        return len(self.garments)
+
+    @property
+    def num_verts(self) -> int:
+        return self.rest.shape[0]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.rest.dtype
+
+    def split(self, values: Tensor) -> list[Tensor]:
+        """Split per-vertex values (..., ΣV, C) into one tensor per garment."""
+        sizes = (self.vert_offsets[1:] - self.vert_offsets[:-1]).tolist()
+        return list(torch.split(values, sizes, dim=-2))
+
+    def to(self, dtype: torch.dtype) -> "GarmentBatch":
+        """The same batch with floating tensors in `dtype`."""
+        changes = {f.name: getattr(self, f.name).to(dtype) for f in fields(self) if f.name in ("rest", "rest_inv", "rest_area")}
+        return replace(self, garments=tuple(g.to(dtype) for g in self.garments), **changes)

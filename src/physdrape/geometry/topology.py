@@ -1,0 +1,107 @@
+"""Connectivity of a triangle mesh: edges, hinges, boundary loops (numpy, computed once per mesh)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Directed half-edges a→b of every face in winding order, their face and opposite corner.
+
+    Returns:
+        ab: (3F, 2) int64 half-edge endpoints; face: (3F,) owning face; opposite: (3F,) the third
+        corner of that face.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    ab = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    opposite = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    face = np.tile(np.arange(len(faces), dtype=np.int64), 3)
+    return ab, face, opposite
+
+
+def _edge_groups(faces: np.ndarray):
+    """Half-edges grouped by undirected edge: (sorted ab, face, opposite, unique keys, start, count)."""
+    ab, face, opposite = _half_edges(faces)
+    num_verts = int(faces.max()) + 1 if len(faces) else 0
+    lo, hi = ab.min(axis=1), ab.max(axis=1)
+    key = lo * num_verts + hi
+    order = np.argsort(key, kind="stable")
+    keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    return ab[order], face[order], opposite[order], keys, start, count, num_verts
+
+
+def undirected_edges(faces: np.ndarray) -> np.ndarray:
+    """Unique undirected edges (i < j), sorted, shape (E, 2) int64."""
+    _, _, _, keys, _, _, num_verts = _edge_groups(faces)
+    return np.stack([keys // max(num_verts, 1), keys % max(num_verts, 1)], axis=1).astype(np.int64)
+
+
+def bidirectional_edges(edges: np.ndarray) -> np.ndarray:
+    """Both directions of each undirected edge as `edge_index` (2, 2E), row 0 = sender."""
+    edges = np.asarray(edges, dtype=np.int64)
+    return np.concatenate([edges.T, edges[:, ::-1].T], axis=1)
+
+
+def non_manifold_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges shared by more than two faces, shape (K, 2) int64."""
+    if len(faces) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    _, _, _, keys, _, count, num_verts = _edge_groups(faces)
+    bad = keys[count > 2]
+    return np.stack([bad // num_verts, bad % num_verts], axis=1).astype(np.int64)
+
+
+def interior_hinges(faces: np.ndarray) -> np.ndarray:
+    """The four vertices of each pair of triangles sharing an edge.
+
+    Returns:
+        hinges: shape (H, 4) int64, [v0, v1] the shared edge, v2 the opposite corner of the face in
+        which v0→v1 is a half-edge, v3 the opposite corner of the other face. The signed dihedral
+        angle (physics.bending) is zero for a flat hinge whatever the faces' winding.
+    """
+    ab, _, opposite, _, start, count, _ = _edge_groups(faces)
+    first = start[count == 2]
+    second = first + 1
+    return np.stack([ab[first, 0], ab[first, 1], opposite[first], opposite[second]], axis=1)
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Half-edges a→b that belong to one face only, in that face's winding, shape (K, 2) int64."""
+    ab, _, _, _, start, count, _ = _edge_groups(faces)
+    return ab[start[count == 1]]
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Closed loops of boundary vertices, each in walking order (first vertex not repeated).
+
+    A garment's loops are its openings (neck, hem, sleeve ends). A vertex where two loops touch
+    (a bow-tie) is visited once per loop.
+    """
+    edges = boundary_edges(faces)
+    outgoing: dict[int, list[int]] = {}
+    for a, b in edges.tolist():
+        outgoing.setdefault(a, []).append(b)
+    loops = []
+    for start in sorted(outgoing):
+        while outgoing.get(start):
+            loop = [start]
+            current = outgoing[start].pop()
+            while current != start:
+                loop.append(current)
+                nexts = outgoing.get(current)
+                if not nexts:  # an open chain: inconsistent winding at the boundary
+                    break
+                current = nexts.pop()
+            loops.append(np.asarray(loop, dtype=np.int64))
+    return loops
+
+
+def connected_components(num_verts: int, faces: np.ndarray) -> np.ndarray:
+    """Component label of each vertex through shared edges, shape (V,) int64 (isolated: own label)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as cc
+
+    edges = undirected_edges(faces) if len(faces) else np.zeros((0, 2), dtype=np.int64)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(num_verts, num_verts))
+    _, labels = cc(graph, directed=False)
+    return labels.astype(np.int64)

@@ -1,0 +1,27 @@
+"""Physics of the garment: material, energies and their analytic forces (pure, batched, any dtype)."""
+
+from physdrape.physics.bending import bend_energy, bend_forces, dihedral_angle
+from physdrape.physics.cloth import Cloth
+from physdrape.physics.collision import collision_energy, collision_forces
+from physdrape.physics.forces import energy_terms, internal_energy, internal_forces
+from physdrape.physics.gravity import gravity_energy, gravity_forces
+from physdrape.physics.material import DEFAULT_MATERIAL, Material
+from physdrape.physics.strain import strain_energy, strain_forces
+
+__all__ = [
+    "Cloth",
+    "DEFAULT_MATERIAL",
+    "Material",
+    "bend_energy",
+    "bend_forces",
+    "collision_energy",
+    "collision_forces",
+    "dihedral_angle",
+    "energy_terms",
+    "gravity_energy",
+    "gravity_forces",
+    "internal_energy",
+    "internal_forces",
+    "strain_energy",
+    "strain_forces",
+]

@@ -1,0 +1,96 @@
+"""The cloth model: a garment batch and its materials turned into per-element coefficients.
+
+This is the static part of the simulation (Newton's "model"): everything the energies and forces
+need except the positions x, precomputed once per batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.physics.material import DEFAULT_MATERIAL, Material
+
+
+@dataclass(frozen=True)
+class Cloth:
+    """Per-element physics coefficients of a packed garment batch (one dtype).
+
+    Attributes:
+        faces: (F, 3) int64; rest_inv: Dm⁻¹ (F, 2, 2) [1/m];
+        volume: reference volume t·A of each face (F,) [m³];
+        mu, lam: Lamé parameters per face (F,) [Pa];
+        hinges: (H, 4) int64 [v0, v1 shared edge, v2, v3];
+        bend_stiffness: k_bend · l₀² / (4(A₀ + A₁)) per hinge (H,) [J];
+        mass: vertex masses (V,) [kg]; gravity: acceleration vector (G, 3) [m/s²] per garment;
+        vert_garment, face_garment, hinge_garment: owning garment per element; num_garments: G.
+    """
+
+    faces: Tensor
+    rest_inv: Tensor
+    volume: Tensor
+    mu: Tensor
+    lam: Tensor
+    hinges: Tensor
+    bend_stiffness: Tensor
+    mass: Tensor
+    gravity: Tensor
+    vert_garment: Tensor
+    face_garment: Tensor
+    hinge_garment: Tensor
+    num_garments: int
+
+    @staticmethod
+    def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
+        """Coefficients for a batch; `materials` is one for all garments or one per garment."""
+        batch = garments if isinstance(garments, GarmentBatch) else GarmentBatch.pack(garments)
+        mats = [materials] * batch.num_garments if isinstance(materials, Material) else list(materials)
+        if len(mats) != batch.num_garments:
+            raise ValueError(f"got {len(mats)} materials for {batch.num_garments} garments: give one, or one per garment")
+        dtype = batch.dtype
+
+        def per_garment(name: str) -> Tensor:
+            return torch.tensor([getattr(m, name) for m in mats], dtype=dtype)
+
+        rest, hinges = batch.rest, batch.hinges
+        x0, x1, x2, x3 = (rest[hinges[:, k]] for k in range(4))
+        edge = x1 - x0
+        area_sum = 0.5 * (torch.linalg.cross(edge, x2 - x0).norm(dim=-1) + torch.linalg.cross(edge, x3 - x0).norm(dim=-1))
+        scale = (edge * edge).sum(-1) / (4.0 * area_sum)
+
+        face_mass = per_garment("density")[batch.face_garment] * batch.rest_area / 3.0
+        mass = torch.zeros(batch.num_verts, dtype=dtype).index_add_(0, batch.faces.reshape(-1), face_mass.repeat_interleave(3))
+        gravity = torch.zeros(batch.num_garments, 3, dtype=dtype)
+        gravity[:, 1] = -per_garment("gravity")
+        return Cloth(
+            faces=batch.faces,
+            rest_inv=batch.rest_inv,
+            volume=per_garment("thickness")[batch.face_garment] * batch.rest_area,
+            mu=per_garment("mu")[batch.face_garment],
+            lam=per_garment("lam")[batch.face_garment],
+            hinges=hinges,
+            bend_stiffness=per_garment("k_bend")[batch.hinge_garment] * scale,
+            mass=mass,
+            gravity=gravity,
+            vert_garment=batch.vert_garment,
+            face_garment=batch.face_garment,
+            hinge_garment=batch.hinge_garment,
+            num_garments=batch.num_garments,
+        )
+
+    @property
+    def num_verts(self) -> int:
+        return self.mass.shape[0]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.mass.dtype
+
+    def sum_per_garment(self, values: Tensor, owner: Tensor) -> Tensor:
+        """Sum per-element values (..., N) into per-garment totals (..., G) using `owner` (N,)."""
+        out = values.new_zeros(*values.shape[:-1], self.num_garments)
+        return out.index_add_(-1, owner, values)

@@ -1,0 +1,48 @@
+"""StVK membrane strain: energy per face and its analytic force (paper Eq. 1)."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from physdrape.physics.cloth import Cloth
+
+
+def deformation_gradient(x: Tensor, cloth: Cloth) -> Tensor:
+    """F = Ds · Dm⁻¹ per face, x (..., V, 3) [m] → (..., F, 3, 2)."""
+    f = cloth.faces
+    x0 = x[..., f[:, 0], :]
+    ds = torch.stack([x[..., f[:, 1], :] - x0, x[..., f[:, 2], :] - x0], dim=-1)
+    return ds @ cloth.rest_inv
+
+
+def green_strain(F: Tensor) -> Tensor:
+    """Green–Lagrange strain G = ½(FᵀF − I), (..., 3, 2) → (..., 2, 2)."""
+    eye = torch.eye(2, dtype=F.dtype, device=F.device)
+    return 0.5 * (F.transpose(-1, -2) @ F - eye)
+
+
+def strain_energy(x: Tensor, cloth: Cloth) -> Tensor:
+    """E_strain per face = t·A·(μ‖G‖²_F + λ/2·tr(G)²) [J], x (..., V, 3) → (..., F)."""
+    G = green_strain(deformation_gradient(x, cloth))
+    trace = G[..., 0, 0] + G[..., 1, 1]
+    psi = cloth.mu * (G * G).sum((-1, -2)) + 0.5 * cloth.lam * trace * trace
+    return cloth.volume * psi
+
+
+def strain_forces(x: Tensor, cloth: Cloth) -> Tensor:
+    """f_i = −Σ_T V_T P_T b_{i,T} with P = F·S, S = 2μG + λ tr(G) I (paper Eq. 1) [N].
+
+    b_{i,T} are the rows of Dm⁻¹ (corners 1, 2) and minus their sum (corner 0). Equal to
+    −∇E_strain; no autograd. x (..., V, 3) → (..., V, 3).
+    """
+    F = deformation_gradient(x, cloth)
+    G = green_strain(F)
+    trace = G[..., 0, 0] + G[..., 1, 1]
+    S = 2.0 * cloth.mu[:, None, None] * G
+    S = S + (cloth.lam * trace)[..., None, None] * torch.eye(2, dtype=x.dtype, device=x.device)
+    H = -(cloth.volume[:, None, None] * (F @ S)) @ cloth.rest_inv.transpose(-1, -2)  # (..., F, 3, 2)
+    f1, f2 = H[..., 0], H[..., 1]
+    corner = torch.stack([-(f1 + f2), f1, f2], dim=-2)  # (..., F, 3 corners, 3)
+    out = torch.zeros_like(x)
+    return out.index_add_(-2, cloth.faces.reshape(-1), corner.flatten(-3, -2))

@@ -1,0 +1,43 @@
+"""Edges, hinges and boundary loops of golden tiny meshes."""
+
+import numpy as np
+
+from physdrape.geometry import topology
+from physdrape.geometry.primitives import grid_sheet, open_cylinder
+
+
+def test_two_triangles():
+    faces = np.array([[0, 1, 2], [2, 1, 3]])
+    np.testing.assert_array_equal(topology.undirected_edges(faces), [[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]])
+    hinges = topology.interior_hinges(faces)
+    assert hinges.shape == (1, 4)
+    assert set(hinges[0, :2]) == {1, 2} and set(hinges[0, 2:]) == {0, 3}
+    loops = topology.boundary_loops(faces)
+    assert len(loops) == 1 and sorted(loops[0].tolist()) == [0, 1, 2, 3]
+    edge_index = topology.bidirectional_edges(topology.undirected_edges(faces))
+    assert edge_index.shape == (2, 10)
+
+
+def test_tube_has_two_boundary_loops_and_euler_characteristic_zero():
+    verts, faces = open_cylinder(4, 8)
+    loops = topology.boundary_loops(faces)
+    assert sorted(len(loop) for loop in loops) == [8, 8]
+    num_edges = len(topology.undirected_edges(faces))
+    assert len(verts) - num_edges + len(faces) == 0  # an annulus
+    assert len(topology.interior_hinges(faces)) == num_edges - 16
+
+
+def test_boundary_loop_is_walked_in_order():
+    _, faces = grid_sheet(3, 4)
+    (loop,) = topology.boundary_loops(faces)
+    boundary = {tuple(sorted(e)) for e in topology.boundary_edges(faces).tolist()}
+    steps = {tuple(sorted((int(a), int(b)))) for a, b in zip(loop, np.roll(loop, -1))}
+    assert steps == boundary
+
+
+def test_components():
+    _, f1 = grid_sheet(2, 2)
+    faces = np.vstack([f1, f1 + 4])
+    labels = topology.connected_components(8, faces)
+    assert len(set(labels[:4])) == 1 and len(set(labels[4:])) == 1 and labels[0] != labels[4]
+    assert len(topology.non_manifold_edges(faces)) == 0
