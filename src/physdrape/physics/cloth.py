@@ -28,6 +28,7 @@ class Cloth:
         bend_stiffness: k_bend · l₀² / (4(A₀ + A₁)) per hinge (H,) [J];
         mass: vertex masses (V,) [kg]; gravity: acceleration vector (G, 3) [m/s²] per garment;
         vert_garment, face_garment, hinge_garment: owning garment per element; num_garments: G.
+        stiffness: (μ [Pa], λ [Pa], k_bend [J]) of each garment's material, (G, 3).
     """
 
     faces: Tensor
@@ -43,6 +44,7 @@ class Cloth:
     face_garment: Tensor
     hinge_garment: Tensor
     num_garments: int
+    stiffness: Tensor
 
     @staticmethod
     def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
@@ -80,6 +82,7 @@ class Cloth:
             face_garment=batch.face_garment,
             hinge_garment=batch.hinge_garment,
             num_garments=batch.num_garments,
+            stiffness=torch.stack([per_garment("mu"), per_garment("lam"), per_garment("k_bend")], dim=-1),
         )
 
     @property

@@ -1,0 +1,62 @@
+"""Model configuration: a frozen dataclass, loaded strictly from YAML/JSON mappings."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class Variant(str, enum.Enum):
+    """Which modules run (the paper's ablations are switches of one model)."""
+
+    GNN_ONLY = "gnn"  # X = X_init + Δx
+    GNN_SOLVER = "gnn+solver"  # + stretching solver
+    GNN_COLLISION = "gnn+collision"  # + collision handler, no solver
+    FULL = "full"  # GNN → solver → handler (PhysDrape)
+    POST_COL = "post-col"  # trained as GNN+solver; handler with δ = 1 applied only at inference
+
+    @property
+    def uses_solver(self) -> bool:
+        return self in (Variant.GNN_SOLVER, Variant.FULL, Variant.POST_COL)
+
+    @property
+    def uses_handler(self) -> bool:
+        return self in (Variant.GNN_COLLISION, Variant.FULL)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture and module settings of `PhysDrape`.
+
+    latent / blocks / mlp_layers: GNN width D, depth L and Linear layers per MLP (paper: 128, 16, 2).
+    train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
+    eta / gamma: initial solver compliance [m/N] and decay. delta: initial handler push factor.
+    margin: collision margin ε [m]. displacement_scale: metres per unit of the decoder's Δx.
+    normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
+    variant: which modules run (see `Variant`).
+    """
+
+    latent: int = 64
+    blocks: int = 8
+    mlp_layers: int = 2
+    train_steps: int = 3
+    eval_steps: int = 15
+    eta: float = 1e-3
+    gamma: float = 0.9
+    delta: float = 1.05
+    margin: float = 2e-3
+    displacement_scale: float = 0.01
+    normalizer_accumulations: int = 100
+    variant: Variant = Variant.FULL
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "variant", Variant(self.variant))
+        for name in ("latent", "blocks", "mlp_layers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")
+
+    @staticmethod
+    def paper() -> "ModelConfig":
+        """The paper's size: D = 128, L = 16."""
+        return ModelConfig(latent=128, blocks=16)
+

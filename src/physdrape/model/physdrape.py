@@ -1,0 +1,97 @@
+"""PhysDrape: force-driven GNN → learnable stretching solver → collision handler (paper Sec. 3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from physdrape.geometry.garment import GarmentBatch
+from physdrape.geometry.proximity import BodySurface
+from physdrape.model.collision_handler import CollisionHandler
+from physdrape.model.config import ModelConfig, Variant
+from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, edge_features, node_features
+from physdrape.model.gnn import EncodeProcessDecode
+from physdrape.model.normalizer import Normalizer
+from physdrape.model.stretching_solver import StretchingSolver
+from physdrape.physics.cloth import Cloth
+
+
+@dataclass(frozen=True)
+class DrapeInput:
+    """One batch of draping problems (garment g is draped on body `body_index` of its vertices).
+
+    Attributes:
+        garments: packed garment templates; cloth: their physics coefficients (materials);
+        x_init: kinematic initialisation X_init [m], (ΣV, 3);
+        bodies: the posed bodies; body_index: body of each garment vertex, (ΣV,) int64.
+    """
+
+    garments: GarmentBatch
+    cloth: Cloth
+    x_init: Tensor
+    bodies: BodySurface
+    body_index: Tensor
+
+
+@dataclass(frozen=True)
+class DrapeOutput:
+    """x: the drape X* [m] (ΣV, 3); x_gnn: X_init + Δx; f_hat: f̂ [N] (ΣV, 3); trace: solver states."""
+
+    x: Tensor
+    x_gnn: Tensor
+    f_hat: Tensor
+    trace: tuple[Tensor, ...]
+
+
+class PhysDrape(nn.Module):
+    """The PhysDrape model; `config.variant` selects the ablation."""
+
+    def __init__(self, config: ModelConfig = ModelConfig()) -> None:
+        super().__init__()
+        self.config = config
+        self.node_normalizer = Normalizer(NODE_FEATURES, max_accumulations=config.normalizer_accumulations)
+        self.edge_normalizer = Normalizer(EDGE_FEATURES, max_accumulations=config.normalizer_accumulations)
+        self.gnn = EncodeProcessDecode(
+            NODE_FEATURES, EDGE_FEATURES, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers
+        )
+        self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma)
+        self.handler = CollisionHandler(margin=config.margin, delta=config.delta)
+
+    def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor]:
+        """Raw (un-normalised) node and edge features at X_init, in the network's dtype."""
+        query = batch.bodies.query(batch.x_init, body_index=batch.body_index)
+        net_dtype = self.gnn.decoder[0].weight.dtype
+        nodes = node_features(batch.x_init, batch.garments, batch.cloth, query.signed_distance).to(net_dtype)
+        return nodes, edge_features(batch.x_init, batch.garments).to(net_dtype)
+
+    @torch.no_grad()
+    def accumulate_statistics(self, batch: DrapeInput) -> None:
+        """One batch of the normalisers' statistics-only warm-up."""
+        nodes, edges = self.graph_inputs(batch)
+        self.node_normalizer.accumulate(nodes)
+        self.edge_normalizer.accumulate(edges)
+
+    def forward(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
+        """Drape a batch. steps: solver steps T (default: train_steps in training, else eval_steps)."""
+        cfg = self.config
+        x_init = batch.x_init
+        nodes, edges = self.graph_inputs(batch)
+        out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), batch.garments.edge_index)
+        out = out.to(x_init.dtype)
+        delta_x = cfg.displacement_scale * out[:, :3]
+        # f̂ in units of each vertex's weight: the support a vertex needs is of that order.
+        weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
+        f_hat = out[:, 3:] * weight[:, None]
+        x_gnn = x_init + delta_x
+        x, trace = x_gnn, []
+        if cfg.variant.uses_solver:
+            if steps is None:
+                steps = cfg.train_steps if self.training else cfg.eval_steps
+            x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None)
+        if cfg.variant.uses_handler:
+            x = self.handler(x, batch.bodies, batch.body_index)
+        elif cfg.variant is Variant.POST_COL and not self.training:
+            x = self.handler(x, batch.bodies, batch.body_index, delta=1.0)
+        return DrapeOutput(x=x, x_gnn=x_gnn, f_hat=f_hat, trace=tuple(trace))

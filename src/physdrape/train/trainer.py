@@ -1,0 +1,232 @@
+"""The training loop: self-supervised, seeded, checkpointed, resumable, data-parallel.
+
+Every step draws the global batch's sample seeds from one generator shared by all ranks; rank r
+builds samples [r·b, (r+1)·b) of them, so a run on R processes with local batch b sees exactly the
+samples of a one-process run with batch R·b, and gradients (averaged by DDP) agree with it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import torch
+import torch.distributed as dist
+from torch import Tensor
+
+from physdrape.config_io import to_mapping
+from physdrape.model import DrapeInput, ModelConfig, PhysDrape
+from physdrape.train import checkpoint as ckpt
+from physdrape.train.loss import LossConfig, drape_loss
+
+
+class SampleSource(Protocol):
+    """Builds a batch of draping problems, each sample fully determined by its seed."""
+
+    def make_batch(self, seeds: list[int]) -> DrapeInput: ...
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """steps: optimiser steps in all; batch_size: global batch (garments per step, all ranks);
+    lr: Adam's initial learning rate (paper 5e-5), decayed exponentially to lr·lr_final_ratio;
+    grad_clip: max global gradient norm; seed: of the sample stream and the initial weights;
+    checkpoint_every / log_every: in steps; keep_checkpoints: newest checkpoints kept."""
+
+    steps: int = 1000
+    batch_size: int = 4
+    lr: float = 5e-5
+    lr_final_ratio: float = 0.1
+    grad_clip: float = 1.0
+    seed: int = 0
+    checkpoint_every: int = 100
+    log_every: int = 10
+    keep_checkpoints: int = 3
+
+    def __post_init__(self) -> None:
+        if self.steps < 1 or self.batch_size < 1 or not self.lr > 0 or not 0 < self.lr_final_ratio <= 1:
+            raise ValueError("need steps ≥ 1, batch_size ≥ 1, lr > 0 and 0 < lr_final_ratio ≤ 1")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run: model, loss and optimiser sections (the data section belongs to the source).
+
+    dtype: of the network's parameters ("float32" or "float64"); the physics runs in the dtype
+    of the source's garments.
+    """
+
+    dtype: str = "float32"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+
+
+def _world() -> tuple[int, int]:
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def _draw_seeds(generator: torch.Generator, count: int) -> list[int]:
+    return torch.randint(0, 2**62, (count,), generator=generator, dtype=torch.int64).tolist()
+
+
+def b2g_percent(x: Tensor, batch: DrapeInput) -> Tensor:
+    """Share of garment area whose face centroid is inside its body [%], per garment (G,)."""
+    faces = batch.garments.faces
+    centroid = x[faces].mean(dim=1)
+    inside = batch.bodies.query(centroid, body_index=batch.body_index[faces[:, 0]]).inside
+    area = batch.garments.rest_area.to(x.dtype)
+    cloth = batch.cloth
+    return 100.0 * cloth.sum_per_garment(area * inside.to(x.dtype), cloth.face_garment) / cloth.sum_per_garment(area, cloth.face_garment)
+
+
+class Trainer:
+    """Runs `TrainConfig` on a `SampleSource`, writing checkpoints, metrics.jsonl and TensorBoard
+    scalars under `run_dir`. Call `run(resume=True)` to continue from the latest checkpoint."""
+
+    def __init__(self, config: TrainConfig, source: SampleSource, run_dir: str | os.PathLike, *, extra_config: dict | None = None,
+                 progress: bool = True, tensorboard: bool = True) -> None:
+        self.config = config
+        self.source = source
+        self.run_dir = Path(run_dir)
+        self.extra_config = extra_config or {}
+        self.progress = progress
+        self.tensorboard = tensorboard
+        self.rank, self.world = _world()
+        if config.optim.batch_size % self.world:
+            raise ValueError(f"batch_size {config.optim.batch_size} is not divisible by the {self.world} processes")
+        torch.manual_seed(config.optim.seed)
+        if config.dtype not in ("float32", "float64"):
+            raise ValueError(f"TrainConfig.dtype must be 'float32' or 'float64', got {config.dtype!r}")
+        self.model = PhysDrape(config.model).to(getattr(torch, config.dtype))
+        self.generator = torch.Generator().manual_seed(config.optim.seed)
+        self.step = 0
+        self.ddp = None
+        if self.world > 1:
+            self.ddp = torch.nn.parallel.DistributedDataParallel(
+                self.model, find_unused_parameters=config.model.variant.value != "full"
+            )
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
+        decay = math.log(config.optim.lr_final_ratio) / config.optim.steps
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: math.exp(decay * s))
+
+    # ----------------------------------------------------------------------------- state
+    def resolved_config(self) -> dict:
+        return {"train": to_mapping(self.config), **self.extra_config}
+
+    def save(self) -> Path | None:
+        if self.rank != 0:
+            return None
+        tensors, meta = ckpt.optimizer_to_tensors(self.optimizer)
+        tensors["rng.sample_stream"] = self.generator.get_state()
+        tensors["rng.torch"] = torch.get_rng_state()
+        meta.update(step=self.step, scheduler=self.scheduler.state_dict())
+        return ckpt.save_checkpoint(self.run_dir, self.step, self.model, self.resolved_config(), train_tensors=tensors,
+                                    train_meta=meta, keep=self.config.optim.keep_checkpoints)
+
+    def load(self, path: Path) -> None:
+        weights, _ = ckpt.read_checkpoint(path)
+        self.model.load_state_dict(weights)
+        tensors, meta = ckpt.read_train_state(path)
+        self.optimizer.load_state_dict(ckpt.optimizer_from_tensors(tensors, meta))
+        self.scheduler.load_state_dict(meta["scheduler"])
+        self.generator.set_state(tensors["rng.sample_stream"])
+        torch.set_rng_state(tensors["rng.torch"])
+        self.step = int(meta["step"])
+
+    def _truncate_metrics(self) -> None:
+        """Drop metric lines logged after the checkpoint we resume from (they will be redone)."""
+        path = self.run_dir / "metrics.jsonl"
+        if self.rank == 0 and path.is_file():
+            kept = [line for line in path.read_text().splitlines() if line and json.loads(line)["step"] <= self.step]
+            ckpt._atomic_write_text(path, "".join(line + "\n" for line in kept))
+
+    # ----------------------------------------------------------------------------- loop
+    def _local_batch(self) -> DrapeInput:
+        seeds = _draw_seeds(self.generator, self.config.optim.batch_size)
+        local = self.config.optim.batch_size // self.world
+        return self.source.make_batch(seeds[self.rank * local:(self.rank + 1) * local])
+
+    def warm_up_normalizers(self) -> None:
+        """Statistics-only warm-up (no optimiser steps); ranks all-reduce their sums."""
+        for _ in range(self.config.model.normalizer_accumulations):
+            self.model.accumulate_statistics(self._local_batch())
+        if self.world > 1:
+            for norm in (self.model.node_normalizer, self.model.edge_normalizer):
+                for name in ("count", "sum", "sum_squares"):
+                    dist.all_reduce(getattr(norm, name))
+
+    def train_step(self) -> dict[str, float]:
+        model = self.ddp or self.model
+        model.train()
+        batch = self._local_batch()
+        out = model(batch)
+        loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)
+        self.optimizer.step()
+        self.scheduler.step()
+        self.step += 1
+        with torch.no_grad():
+            b2g = b2g_percent(out.x.detach(), batch).mean()
+        return {"loss": float(loss.detach()), **{k: float(v) for k, v in terms.items()}, "b2g_percent": float(b2g),
+                "grad_norm": float(grad_norm), "lr": self.scheduler.get_last_lr()[0], "eta": float(self.model.solver.eta.detach()),
+                "gamma": float(self.model.solver.gamma.detach()), "delta": float(self.model.handler.delta.detach())}
+
+    def run(self, *, resume: bool = False, until: int | None = None) -> list[dict]:
+        """Train to `optim.steps` (or stop early at step `until`, as an interruption would);
+        with resume, continue from run_dir's latest checkpoint."""
+        latest = ckpt.latest_checkpoint(self.run_dir) if resume else None
+        if latest is not None:
+            self.load(latest)
+            self._truncate_metrics()
+        elif self.step == 0:
+            self.warm_up_normalizers()
+        writer = None
+        if self.rank == 0 and self.tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            writer = SummaryWriter(str(self.run_dir / "tensorboard"))
+        bar = None
+        if self.rank == 0 and self.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=self.config.optim.steps, initial=self.step, desc="train", dynamic_ncols=True)
+        history = []
+        metrics_path = self.run_dir / "metrics.jsonl"
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        try:
+            stop = self.config.optim.steps if until is None else min(until, self.config.optim.steps)
+            while self.step < stop:
+                record = self.train_step()
+                record["step"] = self.step
+                record["wall_s"] = time.perf_counter() - start
+                history.append(record)
+                if self.rank == 0:
+                    if self.step % self.config.optim.log_every == 0 or self.step == self.config.optim.steps:
+                        with open(metrics_path, "a") as handle:
+                            handle.write(json.dumps(record) + "\n")
+                        if writer is not None:
+                            for key, value in record.items():
+                                if key != "step":
+                                    writer.add_scalar(key, value, self.step)
+                    if bar is not None:
+                        bar.update(1)
+                        bar.set_postfix(loss=f"{record['loss']:.4g}", b2g=f"{record['b2g_percent']:.2f}%")
+                if self.step % self.config.optim.checkpoint_every == 0 or self.step == stop:
+                    self.save()
+        finally:
+            if bar is not None:
+                bar.close()
+            if writer is not None:
+                writer.close()
+        return history

@@ -1,0 +1,356 @@
+"""Body-surface queries (physdrape.geometry.proximity) against slow pure-torch twins.
+
+Synthetic bodies only (icosphere, torus, bumpy non-convex blob, an open sphere); the Anny check
+at the end runs only where the ``anny_body`` fixture exists.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from physdrape.geometry.proximity import (
+    BodySurface,
+    SignMethod,
+    SurfaceQuery,
+    angle_weighted_vertex_normals,
+    closest_point_on_triangle,
+    query_body_surface,
+)
+
+EPS = 2e-3  # collision margin of the handler [m]
+
+
+# ---------------------------------------------------------------------------------------------
+# Synthetic bodies (metres, body-like sizes)
+# ---------------------------------------------------------------------------------------------
+
+
+def icosphere(subdivisions: int = 3, radius: float = 0.15) -> tuple[torch.Tensor, torch.Tensor]:
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return torch.tensor(m.vertices, dtype=torch.float64), torch.tensor(m.faces, dtype=torch.int64)
+
+
+def torus(major: float = 0.2, minor: float = 0.07, nu: int = 40, nv: int = 20) -> tuple[torch.Tensor, torch.Tensor]:
+    """Closed torus around the y axis, outward-wound."""
+    u = torch.arange(nu, dtype=torch.float64) * 2 * math.pi / nu
+    v = torch.arange(nv, dtype=torch.float64) * 2 * math.pi / nv
+    uu, vv = torch.meshgrid(u, v, indexing="ij")
+    verts = torch.stack([(major + minor * torch.cos(vv)) * torch.cos(uu), minor * torch.sin(vv),
+                         (major + minor * torch.cos(vv)) * torch.sin(uu)], -1).reshape(-1, 3)
+    i, j = torch.meshgrid(torch.arange(nu), torch.arange(nv), indexing="ij")
+    a = i * nv + j
+    b = ((i + 1) % nu) * nv + j
+    c = ((i + 1) % nu) * nv + (j + 1) % nv
+    d = i * nv + (j + 1) % nv
+    faces = torch.cat([torch.stack([a, d, c], -1).reshape(-1, 3), torch.stack([a, c, b], -1).reshape(-1, 3)])
+    # Orient outward (checked by the signed volume).
+    tri = verts[faces]
+    vol = (tri[:, 0] * torch.cross(tri[:, 1], tri[:, 2], dim=-1)).sum()
+    if vol < 0:
+        faces = faces[:, [0, 2, 1]]
+    return verts, faces
+
+
+def bumpy_blob() -> tuple[torch.Tensor, torch.Tensor]:
+    """Non-convex star-shaped blob with concave valleys (radius 0.12-0.18 m)."""
+    verts, faces = icosphere(3, 1.0)
+    dirs = verts / verts.norm(dim=-1, keepdim=True)
+    r = 0.15 + 0.03 * torch.sin(3 * torch.atan2(dirs[:, 2], dirs[:, 0])) * torch.cos(2 * dirs[:, 1])
+    return dirs * r[:, None], faces
+
+
+MESHES = {"icosphere": icosphere, "torus": torus, "bumpy": bumpy_blob}
+
+
+# ---------------------------------------------------------------------------------------------
+# Slow twins: brute force over all faces, written independently of the module
+# ---------------------------------------------------------------------------------------------
+
+
+def _segment_dist2(x, a, b):
+    ab = b - a
+    t = (((x - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-300)).clamp(0, 1)
+    q = a + t[..., None] * ab
+    return ((x - q) ** 2).sum(-1), q
+
+
+def brute_force_closest(x: torch.Tensor, verts: torch.Tensor, faces: torch.Tensor):
+    """Exact closest point over all triangles: plane projection if inside, else the 3 edges.
+
+    Returns distance (N,), closest point (N, 3), face (N,), gap to the second-best face (N,).
+    """
+    tri = verts[faces]  # (F, 3, 3)
+    a, b, c = (tri[None, :, k] for k in range(3))
+    xx = x[:, None]
+    n = torch.cross(b - a, c - a, dim=-1)
+    n = n / n.norm(dim=-1, keepdim=True)
+    proj = xx - ((xx - a) * n).sum(-1, keepdim=True) * n
+    # Inside test by the signs of the sub-triangle normals.
+    s0 = (torch.cross(b - a, proj - a, dim=-1) * n).sum(-1)
+    s1 = (torch.cross(c - b, proj - b, dim=-1) * n).sum(-1)
+    s2 = (torch.cross(a - c, proj - c, dim=-1) * n).sum(-1)
+    inside = (s0 >= 0) & (s1 >= 0) & (s2 >= 0)
+    edge2, edgeq = None, None
+    for p0, p1 in ((a, b), (b, c), (c, a)):
+        d2, q = _segment_dist2(xx, p0, p1)
+        if edge2 is None:
+            edge2, edgeq = d2, q
+        else:
+            take = d2 < edge2
+            edge2 = torch.where(take, d2, edge2)
+            edgeq = torch.where(take[..., None], q, edgeq)
+    best2 = torch.where(inside, ((xx - proj) ** 2).sum(-1), edge2)
+    bestq = torch.where(inside[..., None], proj, edgeq)
+    dist = best2.sqrt()
+    top2 = torch.topk(dist, min(2, len(faces)), dim=1, largest=False)
+    face = top2.indices[:, 0]
+    closest = bestq[torch.arange(len(x)), face]
+    gap = top2.values[:, -1] - top2.values[:, 0] if len(faces) > 1 else torch.full_like(dist[:, 0], math.inf)
+    return top2.values[:, 0], closest, face, gap
+
+
+def brute_force_winding_number(x: torch.Tensor, verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Generalized winding number (Van Oosterom-Strackee solid angles / 4 pi), shape (N,)."""
+    tri = verts[faces][None] - x[:, None, None]  # (N, F, 3, 3)
+    a, b, c = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
+    la, lb, lc = a.norm(dim=-1), b.norm(dim=-1), c.norm(dim=-1)
+    num = (a * torch.cross(b, c, dim=-1)).sum(-1)
+    den = la * lb * lc + (a * b).sum(-1) * lc + (b * c).sum(-1) * la + (c * a).sum(-1) * lb
+    return (2 * torch.atan2(num, den)).sum(-1) / (4 * math.pi)
+
+
+def sample_points(verts, faces, n_near: int, n_far: int, seed: int, offset: float = 0.03):
+    """Points near the surface (random face point + normal offset) and far (in a loose box)."""
+    g = torch.Generator().manual_seed(seed)
+    tri = verts[faces]
+    f = torch.randint(0, len(faces), (n_near,), generator=g)
+    w = -torch.log(torch.rand(n_near, 3, generator=g, dtype=torch.float64))
+    w = w / w.sum(-1, keepdim=True)
+    on = (tri[f] * w[..., None]).sum(1)
+    nrm = torch.cross(tri[f, 1] - tri[f, 0], tri[f, 2] - tri[f, 0], dim=-1)
+    nrm = nrm / nrm.norm(dim=-1, keepdim=True)
+    near = on + nrm * (torch.rand(n_near, 1, generator=g, dtype=torch.float64) * 2 - 1) * offset
+    lo, hi = verts.min(0).values, verts.max(0).values
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    far = centre + (torch.rand(n_far, 3, generator=g, dtype=torch.float64) * 2 - 1) * half * 2.0
+    return torch.cat([near, far])
+
+
+# ---------------------------------------------------------------------------------------------
+# Tests
+# ---------------------------------------------------------------------------------------------
+
+
+def test_closest_point_on_triangle_matches_brute_force():
+    g = torch.Generator().manual_seed(0)
+    tri = torch.rand(500, 3, 3, generator=g, dtype=torch.float64)
+    x = torch.rand(500, 3, generator=g, dtype=torch.float64) * 3 - 1
+    p, bary = closest_point_on_triangle(x, tri[:, 0], tri[:, 1], tri[:, 2])
+    for i in range(0, 500, 7):
+        dist, q, _, _ = brute_force_closest(x[i:i + 1], tri[i], torch.tensor([[0, 1, 2]]))
+        assert torch.allclose(p[i], q[0], atol=1e-12)
+    assert torch.allclose(bary.sum(-1), torch.ones(500, dtype=torch.float64))
+    assert (bary >= -1e-12).all()
+    assert torch.allclose((bary[..., None] * tri).sum(1), p, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+@pytest.mark.parametrize("sign_method", list(SignMethod))
+def test_query_matches_brute_force(name, sign_method):
+    verts, faces = MESHES[name]()
+    x = sample_points(verts, faces, 600, 200, seed=1)
+    q = BodySurface(verts, faces, sign_method=sign_method).query(x)
+    dist, closest, face, gap = brute_force_closest(x, verts, faces)
+    wn = brute_force_winding_number(x, verts, faces)
+
+    assert q.closest.shape == (len(x), 3) and q.signed_distance.shape == (len(x),)
+    assert q.face.dtype == torch.int64 and q.inside.dtype == torch.bool
+    assert q.closest.dtype == torch.float64
+    # Distances: the BVH searches in float32, the chosen face is exact to ~1e-7 m.
+    assert torch.allclose(q.signed_distance.abs(), dist, atol=1e-6, rtol=0)
+    assert torch.allclose((x - q.closest).norm(dim=-1), dist, atol=1e-6, rtol=0)
+    # Closest point and face, where the closest face is unambiguous.
+    clear = gap > 1e-4
+    assert clear.sum() > 0.3 * len(x)
+    assert torch.allclose(q.closest[clear], closest[clear], atol=1e-6)
+    # Barycentrics reproduce the closest point on the reported face.
+    corners = verts[faces[q.face]]
+    assert torch.allclose((q.bary[..., None] * corners).sum(1), q.closest, atol=1e-12)
+    # Inside = generalized winding number > 0.5 (points off the surface).
+    off = dist > 1e-5
+    assert torch.equal(q.inside[off], (wn > 0.5)[off])
+    assert torch.equal(q.signed_distance[off] < 0, q.inside[off])
+    # Normals: unit, and the signed gradient direction of the distance.
+    assert torch.allclose(q.normal.norm(dim=-1), torch.ones(len(x), dtype=torch.float64), atol=1e-12)
+    s = torch.where(q.inside, -1.0, 1.0).to(torch.float64)
+    expected_n = s[:, None] * (x - q.closest) / dist[:, None]
+    assert torch.allclose(q.normal[off], expected_n[off], atol=1e-5)
+
+
+def test_open_mesh_winding_number_is_robust():
+    """A sphere with a hole: inside follows the generalized winding number, not ray parity."""
+    verts, faces = icosphere(3)
+    centroids = verts[faces].mean(1)
+    faces = faces[centroids[:, 1] < 0.14]  # open a small cap at the top
+    x = sample_points(verts, faces, 300, 300, seed=2)
+    q = query_body_surface(x, verts, faces)
+    wn = brute_force_winding_number(x, verts, faces)
+    dist = brute_force_closest(x, verts, faces)[0]
+    clear = (dist > 1e-4) & ((wn - 0.5).abs() > 0.02)
+    assert clear.sum() > 400
+    assert torch.equal(q.inside[clear], (wn > 0.5)[clear])
+    assert q.inside[x.norm(dim=-1) < 0.1].all()
+
+
+def test_gradients_match_finite_differences():
+    verts, faces = bumpy_blob()
+    x = sample_points(verts, faces, 160, 40, seed=3)
+    dist, _, _, gap = brute_force_closest(x, verts, faces)
+    x = x[(gap > 2e-4) & (dist > 1e-3)][:24]
+    assert len(x) >= 10
+    surface = BodySurface(verts, faces)
+
+    def signed_distance(pts):
+        return surface.query(pts).signed_distance
+
+    def closest(pts):
+        return surface.query(pts).closest
+
+    xr = x.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(signed_distance, (xr,), eps=1e-6, atol=1e-6)
+    assert torch.autograd.gradcheck(closest, (xr,), eps=1e-6, atol=1e-6)
+    # The finite-difference signal is not zero: d moves along n at unit rate.
+    grad = torch.autograd.grad(signed_distance(xr).sum(), xr)[0]
+    assert torch.allclose(grad, surface.query(x).normal, atol=1e-10)
+    assert grad.norm(dim=-1).min() > 0.99
+
+
+def test_gradients_wrt_body_verts_match_finite_differences():
+    verts, faces = icosphere(1)
+    x = sample_points(verts, faces, 16, 4, seed=4)
+    dist, _, _, gap = brute_force_closest(x, verts, faces)
+    x = x[(gap > 2e-4) & (dist > 1e-3)][:8]
+    assert len(x) >= 4
+    vr = verts.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda v: query_body_surface(x, v, faces).signed_distance, (vr,),
+                                    eps=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_handler_step_clears_margin(name):
+    """x* = x + relu(eps - d) n puts every point at d >= eps in one step (delta = 1).
+
+    Exact where the surface is convex; at a concave crease of angle theta between two faces the
+    neighbouring face can be up to eps (1 - cos theta) closer (the polyhedral limit, tiny on a
+    fine body mesh), which is what the bound allows.
+    """
+    verts, faces = MESHES[name]()
+    x = sample_points(verts, faces, 800, 100, seed=5, offset=0.01)
+    # Also points exactly on vertices, edges midpoints and faces.
+    x = torch.cat([x, verts[:50], verts[faces[:50]].mean(1), verts[faces[:50, :2]].mean(1)])
+    surface = BodySurface(verts, faces)
+    q = surface.query(x)
+    x_new = x + torch.relu(EPS - q.signed_distance)[:, None] * q.normal
+    d_new = surface.query(x_new).signed_distance
+    crease = float(trimesh.Trimesh(verts.numpy(), faces.numpy(), process=False).face_adjacency_angles.max())
+    slack = EPS * (1 - math.cos(crease)) if name != "icosphere" else 0.0
+    assert d_new.min() >= EPS - slack - 1e-9, (float(d_new.min()), slack)
+    assert (x_new - x)[q.signed_distance >= EPS].abs().max() == 0  # points already clear stay put
+
+
+def test_batch_equals_singles_and_packed():
+    bodies = [icosphere(2), icosphere(2), icosphere(2)]
+    verts = torch.stack([bodies[0][0], bodies[1][0] * 1.3 + 0.05, bodies[2][0] * 0.8 - 0.02])
+    faces = bodies[0][1]
+    g = torch.Generator().manual_seed(6)
+    x = (torch.rand(3, 200, 3, generator=g, dtype=torch.float64) * 2 - 1) * 0.25
+    batch = BodySurface(verts, faces).query(x)
+    packed = BodySurface(verts, faces).query(x.reshape(-1, 3), body_index=torch.arange(3).repeat_interleave(200))
+    for b in range(3):
+        single = BodySurface(verts[b], faces).query(x[b])
+        for field in SurfaceQuery.__dataclass_fields__:
+            got, want = getattr(batch, field)[b], getattr(single, field)
+            assert torch.equal(got, want), field
+            assert torch.equal(getattr(packed, field)[b * 200:(b + 1) * 200], want), field
+
+
+def test_refit_equals_rebuild():
+    verts, faces = torus()
+    surface = BodySurface(verts, faces)
+    moved = verts @ torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64) * 1.1
+    moved = moved + torch.tensor([0.05, 0.1, -0.02], dtype=torch.float64)
+    surface.update(moved)
+    x = sample_points(moved, faces, 300, 100, seed=7)
+    refit, fresh = surface.query(x), BodySurface(moved, faces).query(x)
+    assert torch.equal(refit.inside, fresh.inside)
+    assert torch.allclose(refit.signed_distance, fresh.signed_distance, atol=1e-7)
+    # Different BVH layouts may break exact ties (edges, vertices) differently; elsewhere equal.
+    clear = brute_force_closest(x, moved, faces)[3] > 1e-4
+    assert torch.equal(refit.face[clear], fresh.face[clear])
+
+
+def test_on_surface_points_use_pseudo_normals():
+    verts, faces = icosphere(2)
+    q = BodySurface(verts, faces).query(verts)  # exactly on vertices
+    assert torch.allclose(q.signed_distance, torch.zeros(len(verts), dtype=torch.float64), atol=1e-12)
+    assert torch.allclose(q.normal, angle_weighted_vertex_normals(verts, faces), atol=1e-12)
+    assert ((q.normal * verts).sum(-1) > 0).all()  # outward
+
+
+def test_dtype_follows_input_float32():
+    verts, faces = icosphere(2)
+    x = sample_points(verts, faces, 100, 20, seed=8)
+    q32 = query_body_surface(x.float(), verts.float(), faces)
+    q64 = query_body_surface(x, verts, faces)
+    assert q32.signed_distance.dtype == torch.float32 and q32.normal.dtype == torch.float32
+    assert torch.allclose(q32.signed_distance.double(), q64.signed_distance, atol=1e-5)
+
+
+def test_bad_inputs_raise_clear_errors():
+    verts, faces = icosphere(1)
+    surface = BodySurface(verts, faces)
+    with pytest.raises(ValueError, match="NaN"):
+        surface.query(torch.tensor([[0.0, 0.0, float("nan")]], dtype=torch.float64))
+    with pytest.raises(ValueError, match="last dimension of 3"):
+        surface.query(torch.zeros(5, 2, dtype=torch.float64))
+    with pytest.raises(TypeError, match="dtype"):
+        surface.query(torch.zeros(5, 3, dtype=torch.float32))
+    with pytest.raises(ValueError, match=r"must be in \[0, 42\) \(got 42\)"):
+        BodySurface(verts, torch.tensor([[0, 1, 42]]))
+    with pytest.raises(ValueError, match="shape"):
+        BodySurface(verts, faces[:, :2])
+    with pytest.raises(ValueError, match="NaN"):
+        BodySurface(torch.full_like(verts, float("nan")), faces)
+    with pytest.raises(ValueError, match="B = 2"):
+        BodySurface(verts, faces).query(torch.zeros(2, 4, 3, dtype=torch.float64))
+    batch = BodySurface(torch.stack([verts, verts]), faces)
+    with pytest.raises(ValueError, match="body_index"):
+        batch.query(torch.zeros(4, 3, dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"must be in \[0, 2\)"):
+        batch.query(torch.zeros(4, 3, dtype=torch.float64), body_index=torch.tensor([0, 1, 2, 0]))
+    with pytest.raises(ValueError, match="topology"):
+        surface.update(verts[:-1])
+
+
+@pytest.mark.anny
+def test_anny_canonical_body_matches_brute_force(request):
+    try:
+        body = request.getfixturevalue("anny_body")
+    except pytest.FixtureLookupError:
+        pytest.skip("anny_body fixture not available yet")
+    verts = body.canonical_verts().to(torch.float64)
+    faces = torch.as_tensor(body.faces)
+    x = sample_points(verts, faces, 150, 50, seed=9, offset=0.02)
+    q = BodySurface(verts, faces).query(x)
+    for chunk in range(0, len(x), 50):
+        xs = x[chunk:chunk + 50]
+        dist = brute_force_closest(xs, verts, faces)[0]
+        wn = brute_force_winding_number(xs, verts, faces)
+        assert torch.allclose(q.signed_distance[chunk:chunk + 50].abs(), dist, atol=1e-6)
+        off = dist > 1e-5
+        assert torch.equal(q.inside[chunk:chunk + 50][off], (wn > 0.5)[off])
