@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from conftest import make_input, tube
+from drape_cases import make_input, tube
 
 from physdrape.config_io import ConfigError, from_mapping, to_mapping
 from physdrape.model import ModelConfig, PhysDrape, Variant

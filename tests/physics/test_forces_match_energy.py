@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from conftest import deformed
+from physics_cases import deformed
 
 from physdrape.physics import (
     Cloth,

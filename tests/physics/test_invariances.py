@@ -4,7 +4,7 @@ import math
 
 import pytest
 import torch
-from conftest import deformed, random_rotation
+from physics_cases import deformed, random_rotation
 
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.physics import Cloth, Material, bend_energy, bend_forces, dihedral_angle, internal_forces, strain_energy, strain_forces
