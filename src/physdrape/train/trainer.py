@@ -17,9 +17,8 @@ from typing import Protocol
 
 import torch
 import torch.distributed as dist
-from torch import Tensor
-
 from physdrape.config_io import to_mapping
+from physdrape.eval.metrics import b2g_percent
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape
 from physdrape.train import checkpoint as ckpt
 from physdrape.train.loss import LossConfig, drape_loss
@@ -75,16 +74,6 @@ def _world() -> tuple[int, int]:
 
 def _draw_seeds(generator: torch.Generator, count: int) -> list[int]:
     return torch.randint(0, 2**62, (count,), generator=generator, dtype=torch.int64).tolist()
-
-
-def b2g_percent(x: Tensor, batch: DrapeInput) -> Tensor:
-    """Share of garment area whose face centroid is inside its body [%], per garment (G,)."""
-    faces = batch.garments.faces
-    centroid = x[faces].mean(dim=1)
-    inside = batch.bodies.query(centroid, body_index=batch.body_index[faces[:, 0]]).inside
-    area = batch.garments.rest_area.to(x.dtype)
-    cloth = batch.cloth
-    return 100.0 * cloth.sum_per_garment(area * inside.to(x.dtype), cloth.face_garment) / cloth.sum_per_garment(area, cloth.face_garment)
 
 
 class Trainer:
@@ -176,7 +165,7 @@ class Trainer:
         self.scheduler.step()
         self.step += 1
         with torch.no_grad():
-            b2g = b2g_percent(out.x.detach(), batch).mean()
+            b2g = b2g_percent(out.x.detach(), batch.garments, batch.bodies, batch.body_index).mean()
         return {"loss": float(loss.detach()), **{k: float(v) for k, v in terms.items()}, "b2g_percent": float(b2g),
                 "grad_norm": float(grad_norm), "lr": self.scheduler.get_last_lr()[0], "eta": float(self.model.solver.eta.detach()),
                 "gamma": float(self.model.solver.gamma.detach()), "delta": float(self.model.handler.delta.detach())}

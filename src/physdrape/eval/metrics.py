@@ -1,0 +1,85 @@
+"""Drape metrics (DESIGN.md Sec. 4): one definition for training logs, `eval`, reports and the oracle."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from physdrape.geometry.garment import GarmentBatch
+from physdrape.geometry.proximity import BodySurface
+from physdrape.physics.bending import bend_energy
+from physdrape.physics.cloth import Cloth
+from physdrape.physics.forces import internal_forces
+from physdrape.physics.material import DEFAULT_MATERIAL
+from physdrape.physics.strain import strain_energy
+
+#: A vertex closer to the body than this [m] counts as "too close" (HOOD's 1 mm metric).
+CLOSE_DISTANCE = 1e-3
+#: A vertex within this distance [m] of the body is in contact: the body may push on it, so it is
+#: left out of the residual-force check (the collision margin ε plus a millimetre of slack).
+CONTACT_DISTANCE = 3e-3
+
+
+def b2g_percent(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor) -> Tensor:
+    """Body-to-garment interpenetration: 100 · Σ_f A_f [centroid of f inside] / Σ_f A_f, per garment (G,).
+
+    Inside is decided exactly by the body-surface query (winding number; no margin). Areas are
+    rest areas. x: garment positions [m], (ΣV, 3); body_index: body of each vertex, (ΣV,).
+    """
+    faces = garments.faces
+    centroid = x[faces].mean(dim=1)
+    inside = bodies.query(centroid, body_index=body_index[faces[:, 0]]).inside
+    area = garments.rest_area.to(x.dtype)
+    owner, count = garments.face_garment, garments.num_garments
+    inside_area = torch.zeros(count, dtype=x.dtype).index_add_(0, owner, area * inside.to(x.dtype))
+    total_area = torch.zeros(count, dtype=x.dtype).index_add_(0, owner, area)
+    return 100.0 * inside_area / total_area
+
+
+@dataclass(frozen=True)
+class DrapeMetrics:
+    """Per-garment metrics of a drape, each a tensor of shape (G,).
+
+    strain, bend: energies [J] under the default material (comparable across runs whatever
+    material was draped); b2g_percent: see `b2g_percent`; close_percent: share of vertices with
+    signed distance < 1 mm [%]; residual_force: mean ‖F_int‖ over vertices not in contact [N];
+    residual_relative: the same, each vertex's force divided by its weight m_i·g (mean).
+    """
+
+    strain: Tensor
+    bend: Tensor
+    b2g_percent: Tensor
+    close_percent: Tensor
+    residual_force: Tensor
+    residual_relative: Tensor
+
+    def as_dict(self) -> dict[str, list[float]]:
+        return {name: getattr(self, name).tolist() for name in self.__dataclass_fields__}
+
+
+@torch.no_grad()
+def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *, cloth: Cloth | None = None) -> DrapeMetrics:
+    """All metrics of drapes x (ΣV, 3) [m]. `cloth` gives the materials actually draped (for the
+    residual force); energies always use the default material."""
+    reference = Cloth.build(garments.to(x.dtype), DEFAULT_MATERIAL)
+    cloth = reference if cloth is None else cloth
+    count = garments.num_garments
+    query = bodies.query(x, body_index=body_index)
+    verts_per_garment = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, torch.ones_like(query.signed_distance))
+    close = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, (query.signed_distance < CLOSE_DISTANCE).to(x.dtype))
+    force = internal_forces(x, cloth).norm(dim=-1)
+    weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
+    free = (query.signed_distance > CONTACT_DISTANCE).to(x.dtype)
+    free_count = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, free).clamp_min(1.0)
+    residual = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, force * free) / free_count
+    relative = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, force / weight * free) / free_count
+    return DrapeMetrics(
+        strain=reference.sum_per_garment(strain_energy(x, reference), reference.face_garment),
+        bend=reference.sum_per_garment(bend_energy(x, reference), reference.hinge_garment),
+        b2g_percent=b2g_percent(x, garments, bodies, body_index),
+        close_percent=100.0 * close / verts_per_garment,
+        residual_force=residual,
+        residual_relative=relative,
+    )
