@@ -338,6 +338,7 @@ def test_bad_inputs_raise_clear_errors():
 
 
 @pytest.mark.anny
+@pytest.mark.slow
 def test_anny_canonical_body_matches_brute_force(request):
     try:
         body = request.getfixturevalue("anny_body")
@@ -345,7 +346,7 @@ def test_anny_canonical_body_matches_brute_force(request):
         pytest.skip("anny_body fixture not available yet")
     verts = body.canonical_verts().to(torch.float64)
     faces = torch.as_tensor(body.faces)
-    x = sample_points(verts, faces, 150, 50, seed=9, offset=0.02)
+    x = sample_points(verts, faces, 75, 25, seed=9, offset=0.02)
     q = BodySurface(verts, faces).query(x)
     for chunk in range(0, len(x), 50):
         xs = x[chunk:chunk + 50]
