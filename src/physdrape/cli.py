@@ -9,11 +9,13 @@ from pathlib import Path
 
 import torch
 
+from physdrape.config_io import ConfigError
 from physdrape.geometry.garment import Garment
 from physdrape.geometry.mesh import MeshError, read_mesh
 from physdrape.geometry.primitives import open_cylinder
 from physdrape.physics import Cloth, Material, internal_forces
 from physdrape.physics.forces import energy_terms
+from physdrape.train.checkpoint import CheckpointError
 
 
 def _load_garment(path: str | None) -> Garment:
@@ -44,21 +46,57 @@ def cmd_drape(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train a model (data-parallel under torchrun: gloo on CPU, NCCL on GPUs)."""
+    import os
+
+    import torch.distributed as dist
+
+    from physdrape.config_io import load_config
+    from physdrape.train.data import DrapeSource
+    from physdrape.train.trainer import TrainConfig, Trainer
+
+    config = load_config(TrainConfig, args.config)
+    if args.steps is not None:
+        from dataclasses import replace
+
+        config = replace(config, optim=replace(config.optim, steps=args.steps))
+    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    if distributed:
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        trainer = Trainer(config, DrapeSource(config.data), args.run_dir)
+        trainer.run(resume=args.resume)
+    finally:
+        if distributed:
+            dist.barrier()  # no rank tears gloo down while another still talks to it
+            dist.destroy_process_group()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="physdrape", description="Drape garments onto bodies with PhysDrape.")
     sub = parser.add_subparsers(dest="command", required=True)
     drape = sub.add_parser("drape", help="drape a garment (default: the bundled one)")
     drape.add_argument("--garment", help="garment template mesh (.obj/.ply, metres, y-up)")
     drape.set_defaults(func=cmd_drape)
+    train = sub.add_parser("train", help="train a PhysDrape model (self-supervised, resumable)")
+    train.add_argument("--config", required=True, help="YAML run config (see configs/cpu_default.yaml)")
+    train.add_argument("--run-dir", required=True, help="directory for checkpoints, metrics.jsonl, TensorBoard")
+    train.add_argument("--resume", action="store_true", help="continue from the run directory's latest checkpoint")
+    train.add_argument("--steps", type=int, help="override optim.steps")
+    train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
+    train.set_defaults(func=cmd_train)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    torch.set_default_dtype(torch.float64)
     try:
         return args.func(args)
-    except MeshError as exc:
+    except (MeshError, ConfigError, CheckpointError) as exc:
         print(f"physdrape: error: {exc}", file=sys.stderr)
         return 2
 

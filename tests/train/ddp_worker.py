@@ -28,4 +28,5 @@ if __name__ == "__main__":
     if trainer.rank == 0:
         save_file({k: v.contiguous() for k, v in trainer.model.state_dict().items()}, out + "/weights.safetensors")
     if distributed:
+        dist.barrier()  # no rank tears gloo down while another still talks to it
         dist.destroy_process_group()

@@ -231,7 +231,7 @@ def _warp():
     """Import warp and define the query kernels (first call only)."""
     import warp as wp  # noqa: PLC0415  (heavy import, only needed for queries)
 
-    wp.config.quiet = True  # no banner or module-load lines on stdout (the CLI prints JSON there)
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner on stdout (the CLI prints JSON there)
     wp.init()  # no-op when already initialised (e.g. by anny)
 
     @wp.kernel(enable_backward=False)

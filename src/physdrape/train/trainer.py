@@ -21,6 +21,7 @@ from physdrape.config_io import to_mapping
 from physdrape.eval.metrics import b2g_percent
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape
 from physdrape.train import checkpoint as ckpt
+from physdrape.train.data import DataConfig
 from physdrape.train.loss import LossConfig, drape_loss
 
 
@@ -54,16 +55,18 @@ class OptimConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """A training run: model, loss and optimiser sections (the data section belongs to the source).
+    """A training run: model, loss, optimiser and data sections.
 
     dtype: of the network's parameters ("float32" or "float64"); the physics runs in the dtype
-    of the source's garments.
+    of the source's garments. The data section configures `DrapeSource` (the trainer itself
+    takes whatever `SampleSource` it is given).
     """
 
     dtype: str = "float32"
     model: ModelConfig = field(default_factory=ModelConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
+    data: DataConfig = field(default_factory=DataConfig)
 
 
 def _world() -> tuple[int, int]:

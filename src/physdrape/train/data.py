@@ -1,0 +1,159 @@
+"""Training samples on the real pipeline: garment templates × Anny shapes and poses × materials.
+
+Each sample is fully determined by its seed: which training garment, which posed body of the
+body pool, which material. The body pool (posed, shaped Anny bodies with their skinning
+transforms) is computed once per source, so the body model is not on the training hot path; the
+garment skinning transfers are fitted once per garment, on first use.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from physdrape.body.model import BodyState
+from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.proximity import BodySurface
+from physdrape.model import DrapeInput
+from physdrape.physics import Cloth, Material
+
+#: HOOD's training ranges (DESIGN.md Sec. 4b).
+MU_RANGE = (1.59e4, 6.36e4)  # Pa, log-uniform
+LAMBDA_RANGE = (3.5e3, 9.33e4)  # Pa, uniform
+K_BEND_RANGE = (6.4e-8, 1.3e-3)  # J, log-uniform
+DENSITY_RANGE = (0.043, 0.7)  # kg/m², uniform
+
+
+def default_split_dir(seed: int = 0) -> Path:
+    """Where the generated garment split is cached: ~/.cache/physdrape/garments/split-seed<seed>."""
+    return Path.home() / ".cache" / "physdrape" / "garments" / f"split-seed{seed}"
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """split_dir: garment split ("" = the default cache, generated on first use); split_seed: its
+    seed; subset: "train" or "test"; max_garments: use the first N (0 = all); body_pool_size:
+    posed bodies precomputed; body_seed: seed of their shapes and poses; materials: "sampled"
+    (HOOD's ranges) or "default"; dtype: of garments and bodies ("float32"/"float64")."""
+
+    split_dir: str = ""
+    split_seed: int = 0
+    subset: str = "train"
+    max_garments: int = 0
+    body_pool_size: int = 128
+    body_seed: int = 0
+    materials: str = "sampled"
+    dtype: str = "float32"
+
+    def __post_init__(self) -> None:
+        if self.materials not in ("sampled", "default"):
+            raise ValueError(f"DataConfig.materials must be 'sampled' or 'default', got {self.materials!r}")
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"DataConfig.dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.body_pool_size < 1:
+            raise ValueError("DataConfig.body_pool_size must be ≥ 1")
+
+
+def sample_material(rng: np.random.Generator) -> Material:
+    """A fabric from HOOD's ranges (μ, k_bend log-uniform; λ, density uniform)."""
+
+    def log_uniform(lo: float, hi: float) -> float:
+        return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+    return Material(
+        mu=log_uniform(*MU_RANGE),
+        lam=float(rng.uniform(*LAMBDA_RANGE)),
+        k_bend=log_uniform(*K_BEND_RANGE),
+        density=float(rng.uniform(*DENSITY_RANGE)),
+    )
+
+
+class BodyPool:
+    """Posed Anny bodies computed once: verts, rest_verts, vertex_transforms of N (shape, pose)."""
+
+    def __init__(self, body, size: int, *, seed: int, dtype: torch.dtype, chunk: int = 16) -> None:
+        from physdrape.body.poses import sample_poses
+        from physdrape.body.shapes import sample_shapes
+
+        self.faces = body.faces
+        self.canonical = body.canonical_verts(dtype=dtype)
+        shapes = sample_shapes(size, seed=seed, dtype=dtype)
+        poses = sample_poses(body, size, seed=seed, shape=shapes, dtype=dtype)
+        verts, rest, transforms = [], [], []
+        with torch.no_grad():
+            for start in range(0, size, chunk):
+                state = body(shapes[start:start + chunk], poses[start:start + chunk])
+                verts.append(state.verts)
+                rest.append(state.rest_verts)
+                transforms.append(state.vertex_transforms)
+        self.shapes, self.poses = shapes, poses
+        self.verts, self.rest_verts, self.vertex_transforms = torch.cat(verts), torch.cat(rest), torch.cat(transforms)
+
+    def __len__(self) -> int:
+        return self.verts.shape[0]
+
+    def state(self, index: int) -> BodyState:
+        """Body `index` as a BodyState of batch 1 (normals left empty: not needed for LBS)."""
+        sl = slice(index, index + 1)
+        return BodyState(verts=self.verts[sl], faces=self.faces, normals=torch.empty(0),
+                         rest_verts=self.rest_verts[sl], vertex_transforms=self.vertex_transforms[sl])
+
+
+def load_templates(config: DataConfig) -> list[Garment]:
+    """The split's garments as validated `Garment`s (generating the split on first use)."""
+    from physdrape.garments.split import load_split, make_split
+
+    split_dir = Path(config.split_dir).expanduser() if config.split_dir else default_split_dir(config.split_seed)
+    if not (split_dir / "manifest.json").is_file():
+        print(f"[physdrape] generating the garment split in {split_dir} (first use only)")
+        make_split(split_dir, seed=config.split_seed)
+    dtype = getattr(torch, config.dtype)
+    raw = load_split(split_dir, config.subset)
+    if config.max_garments:
+        raw = raw[: config.max_garments]
+    return [Garment.from_mesh(g.verts, g.faces, name=g.name, dtype=dtype) for g in raw]
+
+
+class DrapeSource:
+    """`SampleSource` of the real pipeline (see the module docstring)."""
+
+    def __init__(self, config: DataConfig = DataConfig(), *, body=None, templates: list[Garment] | None = None) -> None:
+        from physdrape.body.anny_body import get_anny_body
+
+        self.config = config
+        self.dtype = getattr(torch, config.dtype)
+        self.body = body if body is not None else get_anny_body()
+        self.templates = templates if templates is not None else load_templates(config)
+        if not self.templates:
+            raise ValueError("no garment templates to train on: check DataConfig.split_dir / subset / max_garments")
+        self.pool = BodyPool(self.body, config.body_pool_size, seed=config.body_seed, dtype=self.dtype)
+        self._transfers: dict[int, SkinningTransfer] = {}
+
+    def transfer(self, index: int) -> SkinningTransfer:
+        """The skinning transfer of template `index` (fitted on first use)."""
+        if index not in self._transfers:
+            g = self.templates[index]
+            self._transfers[index] = SkinningTransfer.fit(self.pool.canonical.to(torch.float64), self.pool.faces,
+                                                          g.rest.to(torch.float64), g.faces)
+        return self._transfers[index]
+
+    def make_batch(self, seeds: list[int]) -> DrapeInput:
+        garments, materials, x_init, body_ids = [], [], [], []
+        for seed in seeds:
+            rng = np.random.default_rng(seed)
+            g = int(rng.integers(len(self.templates)))
+            b = int(rng.integers(len(self.pool)))
+            material = sample_material(rng) if self.config.materials == "sampled" else Material()
+            with torch.no_grad():
+                x_init.append(self.transfer(g).apply(self.pool.state(b))[0].to(self.dtype))
+            garments.append(self.templates[g])
+            materials.append(material)
+            body_ids.append(b)
+        batch = GarmentBatch.pack(garments)
+        bodies = BodySurface(self.pool.verts[body_ids], self.pool.faces)
+        return DrapeInput(batch, Cloth.build(batch, materials), torch.cat(x_init), bodies, batch.vert_garment)
