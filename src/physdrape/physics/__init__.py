@@ -6,12 +6,14 @@ from physdrape.physics.collision import collision_energy, collision_forces
 from physdrape.physics.forces import energy_terms, internal_energy, internal_forces
 from physdrape.physics.gravity import gravity_energy, gravity_forces
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
+from physdrape.physics.oracle import OracleResult, relax
 from physdrape.physics.strain import strain_energy, strain_forces
 
 __all__ = [
     "Cloth",
     "DEFAULT_MATERIAL",
     "Material",
+    "OracleResult",
     "bend_energy",
     "bend_forces",
     "collision_energy",
@@ -22,6 +24,7 @@ __all__ = [
     "gravity_forces",
     "internal_energy",
     "internal_forces",
+    "relax",
     "strain_energy",
     "strain_forces",
 ]
