@@ -30,7 +30,8 @@ class ModelConfig:
 
     latent / blocks / mlp_layers: GNN width D, depth L and Linear layers per MLP (paper: 128, 16, 2).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
-    eta / gamma: initial solver compliance [m/N] and decay. delta: initial handler push factor.
+    eta / gamma: initial solver compliance [m/N] and decay; max_step: the solver's per-vertex
+    step clip [m] (stability guard, see `StretchingSolver`). delta: initial handler push factor.
     margin: collision margin ε [m]. displacement_scale: metres per unit of the decoder's Δx.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
@@ -43,6 +44,7 @@ class ModelConfig:
     eval_steps: int = 15
     eta: float = 1e-3
     gamma: float = 0.9
+    max_step: float = 5e-3
     delta: float = 1.05
     margin: float = 2e-3
     displacement_scale: float = 0.01

@@ -56,7 +56,7 @@ class PhysDrape(nn.Module):
         self.gnn = EncodeProcessDecode(
             NODE_FEATURES, EDGE_FEATURES, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers
         )
-        self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma)
+        self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma, max_step=config.max_step)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta)
 
     def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor]:

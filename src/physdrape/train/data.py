@@ -30,8 +30,8 @@ DENSITY_RANGE = (0.043, 0.7)  # kg/m², uniform
 
 
 def default_split_dir(seed: int = 0) -> Path:
-    """Where the generated garment split is cached: ~/.cache/physdrape/garments/split-seed<seed>."""
-    return Path.home() / ".cache" / "physdrape" / "garments" / f"split-seed{seed}"
+    """Where the generated garment split is cached: ~/.cache/physdrape/garment_split_seed<seed>."""
+    return Path.home() / ".cache" / "physdrape" / f"garment_split_seed{seed}"
 
 
 @dataclass(frozen=True)
