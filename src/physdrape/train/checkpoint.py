@@ -131,3 +131,25 @@ def read_train_state(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
     if not tensors.is_file() or not meta.is_file():
         raise CheckpointError(f"{path} has no training state (train_state.*): it cannot be resumed, only loaded")
     return load_file(tensors), json.loads(meta.read_text())
+
+
+def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike) -> Path:
+    """Copy a checkpoint's model (model.safetensors + config.json, no training state) to out_dir,
+    atomically: the form in which a trained model is shipped and loaded for inference."""
+    source = Path(checkpoint)
+    if (source / LATEST).is_file():
+        source = latest_checkpoint(source)
+    weights, config = read_checkpoint(source)  # validates that both files are readable
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
+        (tmp / "config.json").write_text(json.dumps({**config, "exported_from": source.name}, indent=2, sort_keys=True))
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir

@@ -1,0 +1,83 @@
+"""Training curves from a run's metrics.jsonl, as a PNG (headless matplotlib).
+
+    python -m physdrape.train.curves RUN_DIR/metrics.jsonl OUT.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def read_metrics(path: str | os.PathLike) -> list[dict]:
+    """The records of a metrics.jsonl file, in order."""
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+def running_median(values: np.ndarray, window: int) -> np.ndarray:
+    """Median over the last `window` values at each point (robust to the loss's heavy tail)."""
+    return np.array([np.median(values[max(0, i - window + 1):i + 1]) for i in range(len(values))])
+
+
+def plot_metrics(records: list[dict], out: str | os.PathLike, *, window: int = 25) -> None:
+    """Loss and each energy term (log scale, raw and running median), B2G and η, γ, δ over steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = np.array([r["step"] for r in records])
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    ax = axes[0]
+    for key, colour in (("loss", "k"), ("strain", "tab:blue"), ("bend", "tab:orange"), ("collision", "tab:red")):
+        values = np.array([max(r[key], 1e-12) for r in records])
+        ax.plot(steps, values, color=colour, alpha=0.2, lw=0.8)
+        ax.plot(steps, running_median(values, window), color=colour, lw=1.8, label=f"{key} (running median)")
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel("energy per garment [J]")
+    ax.set_title("training loss terms (E_grav not shown: offset)")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    b2g = np.array([r["b2g_percent"] for r in records])
+    ax.plot(steps, b2g, color="tab:red", alpha=0.3, lw=0.8)
+    ax.plot(steps, running_median(b2g, window), color="tab:red", lw=1.8)
+    ax.set_xlabel("step")
+    ax.set_ylabel("B2G [%]")
+    ax.set_title("interpenetration of the training batch")
+    ax = axes[2]
+    for key in ("eta", "gamma", "delta"):
+        ax.plot(steps, [r[key] for r in records], label=key)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_title("learned η [m/N], γ, δ")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".png", dir=out.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, out)
+    finally:
+        plt.close(fig)
+        Path(tmp).unlink(missing_ok=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Plot a training run's metrics.jsonl.")
+    parser.add_argument("metrics", help="path of metrics.jsonl")
+    parser.add_argument("out", help="PNG to write")
+    parser.add_argument("--window", type=int, default=25, help="running-median window [log records]")
+    args = parser.parse_args(argv)
+    plot_metrics(read_metrics(args.metrics), args.out, window=args.window)
+
+
+if __name__ == "__main__":
+    main()
