@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 import torch
+from timing import median_ms
 
 LOAD_SNIPPET = (
     "import time; t = time.perf_counter(); from physdrape.body.anny_body import AnnyBody; "
@@ -27,17 +26,6 @@ LOAD_SNIPPET = (
 def time_load(env: dict) -> float:
     out = subprocess.run([sys.executable, "-c", LOAD_SNIPPET], env=env, capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
-
-
-def median_time(fn, repeats: int) -> float:
-    fn()
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -66,18 +54,18 @@ def main() -> None:
         for B in (1, 8):
             shape = sample_shapes(B, seed=0, dtype=dtype)
             pose = sample_poses(body, B, seed=0, dtype=dtype)
-            t = median_time(lambda: body(shape, pose), args.repeats)
+            t = median_ms(lambda: body(shape, pose), args.repeats, warmup=2) / 1e3
             rows.append((f"Anny forward B={B} {str(dtype)[6:]}", t, f"{1e3 * t / B:.2f} ms/body"))
             if dtype == torch.float32:
                 with torch.no_grad():
-                    t = median_time(lambda: body(shape, pose), args.repeats)
+                    t = median_ms(lambda: body(shape, pose), args.repeats, warmup=2) / 1e3
                 rows.append((f"Anny forward B={B} float32 no_grad", t, f"{1e3 * t / B:.2f} ms/body"))
     st = body(body.default_shape(8), sample_poses(body, 8, seed=1))
-    t = median_time(lambda: arm_torso_penetration(st, body), max(3, args.repeats // 4))
+    t = median_ms(lambda: arm_torso_penetration(st, body), max(3, args.repeats // 4), warmup=2) / 1e3
     rows.append(("arm_torso_penetration B=8", t, f"{1e3 * t / 8:.1f} ms/body"))
-    t = median_time(lambda: sample_poses(body, 8, seed=2), 3)
+    t = median_ms(lambda: sample_poses(body, 8, seed=2), 3, warmup=2) / 1e3
     rows.append(("sample_poses 8 (with rejection)", t, f"{1e3 * t / 8:.1f} ms/pose"))
-    t = median_time(lambda: body.hm08_verts(body.default_shape(1)), args.repeats)
+    t = median_ms(lambda: body.hm08_verts(body.default_shape(1)), args.repeats, warmup=2) / 1e3
     rows.append(("hm08_verts B=1 (19,158 verts)", t, ""))
 
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, {body.num_verts} verts, "

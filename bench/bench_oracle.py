@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import numpy as np
 import torch
+from timing import median_ms
 
 from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import open_cylinder
@@ -127,13 +127,7 @@ def component_timings(garment, repeats: int):
     strain_ad = torch.func.vmap(torch.func.hessian(fe))
 
     def time_ms(fn):
-        fn()
-        ts = []
-        for _ in range(repeats):
-            t = time.perf_counter()
-            fn()
-            ts.append(time.perf_counter() - t)
-        return 1e3 * statistics.median(ts)
+        return median_ms(fn, repeats)
 
     rows = [
         ("strain Hessian, analytic (F×9×9)", time_ms(lambda: strain_hessian(x, cloth))),

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import torch
+from timing import median_ms
 
 from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import open_cylinder
@@ -23,16 +23,6 @@ def tube_garment(num_verts: int) -> Garment:
     segments = int(round((num_verts * 2.5) ** 0.5))
     rings = max(2, round(num_verts / segments))
     return Garment.from_mesh(*open_cylinder(rings, segments, radius=0.16, length=0.6), name=f"tube{num_verts}")
-
-
-def median_ms(fn, repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
 
 
 def main() -> None:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -22,6 +21,11 @@ import time
 
 import numpy as np
 import torch
+from timing import median_ms
+
+
+def median_ms_nowarm(fn, repeats):
+    return median_ms(fn, repeats, warmup=0)
 
 from physdrape.geometry.proximity import BodySurface, SignMethod, closest_point_on_triangle
 
@@ -60,15 +64,6 @@ def garment_points(verts: torch.Tensor, faces: torch.Tensor, n: int, seed: int =
     nrm = area[f] / area[f].norm(dim=-1, keepdim=True)
     offset = torch.rand(n, 1, generator=g, dtype=verts.dtype) * 0.05 - 0.01
     return (tri[f] * w[..., None]).sum(1) + offset * nrm
-
-
-def median_ms(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
 
 
 def brute_force(points: torch.Tensor, verts: torch.Tensor, faces: torch.Tensor, chunk: int = 32):
@@ -134,22 +129,22 @@ def main() -> None:
         surface = BodySurface(verts, faces, sign_method=method)
         surface.query(x64)  # first call: kernel module load, one per process
         rows.append((f"[{method.value}] BodySurface() incl. topology precompute",
-                     f"{median_ms(lambda: BodySurface(verts, faces, sign_method=method), args.repeats):9.2f} ms"))
+                     f"{median_ms_nowarm(lambda: BodySurface(verts, faces, sign_method=method), args.repeats):9.2f} ms"))
         rows.append((f"[{method.value}] BVH rebuild (same topology)",
-                     f"{median_ms(lambda: surface._build(verts[None]), args.repeats):9.2f} ms"))
+                     f"{median_ms_nowarm(lambda: surface._build(verts[None]), args.repeats):9.2f} ms"))
         rows.append((f"[{method.value}] update() = refit",
-                     f"{median_ms(lambda: surface.update(moved), args.repeats):9.2f} ms"))
+                     f"{median_ms_nowarm(lambda: surface.update(moved), args.repeats):9.2f} ms"))
         surface.update(verts)
         for dtype in (torch.float32, torch.float64):
             s = surface if dtype == torch.float64 else BodySurface(verts.to(dtype), faces, sign_method=method)
             x = x64.to(dtype)
             s.query(x)
             rows.append((f"[{method.value}] query {n} pts, {str(dtype)[6:]}",
-                         f"{median_ms(lambda: s.query(x), args.repeats):9.2f} ms"))
+                         f"{median_ms_nowarm(lambda: s.query(x), args.repeats):9.2f} ms"))
         x32 = x64.float().contiguous()
         body_idx = torch.zeros(n, dtype=torch.int32)
         rows.append((f"[{method.value}]   of which Warp BVH search",
-                     f"{median_ms(lambda: surface._search(x32, body_idx), args.repeats):9.2f} ms"))
+                     f"{median_ms_nowarm(lambda: surface._search(x32, body_idx), args.repeats):9.2f} ms"))
 
     # Batch of 4 bodies (B, N, 3).
     batch = torch.stack([verts, moved, verts * 1.02, moved * 0.98])
@@ -157,7 +152,7 @@ def main() -> None:
     xb = torch.stack([x64] * 4)
     surface_b.query(xb)
     rows.append((f"[winding_number] query 4 bodies x {n} pts, float64",
-                 f"{median_ms(lambda: surface_b.query(xb), max(3, args.repeats // 3)):9.2f} ms"))
+                 f"{median_ms_nowarm(lambda: surface_b.query(xb), max(3, args.repeats // 3)):9.2f} ms"))
 
     # Brute-force reference on a subset, extrapolated.
     sub = 200
@@ -188,7 +183,7 @@ def main() -> None:
         transfer.apply(state)
         rows.append((f"SkinningTransfer.apply, B={b}, float64, "
                      f"{transfer.weights.values().numel() / len(g_verts):.0f} influences/vertex",
-                     f"{median_ms(lambda: transfer.apply(state), args.repeats):9.2f} ms"))
+                     f"{median_ms_nowarm(lambda: transfer.apply(state), args.repeats):9.2f} ms"))
 
     print(f"body: {body_name}: {verts.shape[0]} verts, {faces.shape[0]} faces; "
           f"torch threads {torch.get_num_threads()}; medians of {args.repeats}")

@@ -411,7 +411,7 @@ class _IPCContact:
         """Largest collision-free step length per garment along p (CCD), (G,)."""
         out = np.ones(len(self.meshes))
         for g, mesh in enumerate(self.meshes):
-            lo, hi = self.offsets[g], self.offsets[g + 1]
+            _lo, _hi = self.offsets[g], self.offsets[g + 1]
             out[g] = self.ipctk.compute_collision_free_stepsize(mesh, self._full(x_np, g),
                                                                 self._full(x_np + p_np, g))
         return out
