@@ -25,7 +25,7 @@ def main(argv=None) -> None:
     ap.add_argument("--workers", type=int, default=1)
     args = ap.parse_args(argv)
 
-    from physdrape.garments._body import canonical_body
+    from physdrape.garments.generator import canonical_body
 
     t0 = time.perf_counter()
     canonical_body()

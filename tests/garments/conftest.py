@@ -1,4 +1,4 @@
-"""Fixtures for the garment tests: the canonical body is built once per machine (cached)."""
+"""Fixtures for the garment tests: the canonical body is built once per session."""
 
 from pathlib import Path
 
@@ -9,7 +9,7 @@ MAKEHUMAN_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "makeh
 
 @pytest.fixture(scope="session")
 def body():
-    from physdrape.garments._body import canonical_body
+    from physdrape.garments.generator import canonical_body
 
     return canonical_body()
 

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from physdrape.garments import GarmentCategory, load_split, make_split
+from physdrape.garments import GarmentCategory, GarmentTemplate, load_split, make_split
 from physdrape.garments.split import main, split_entries
 
 pytestmark = pytest.mark.anny
@@ -27,6 +27,7 @@ def test_split_is_reproducible_from_its_seed(tmp_path, body):
         assert set(g) >= {"params", "num_verts", "num_faces", "sha256", "file", "seed", "attempt"}
     loaded = load_split(a, "test")
     assert [g.num_verts for g in loaded] == [g["num_verts"] for g in test]
+    assert all(isinstance(g, GarmentTemplate) for g in loaded)
 
 
 def test_train_and_test_draws_are_disjoint():

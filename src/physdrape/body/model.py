@@ -20,6 +20,8 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from physdrape.geometry.normals import vertex_face_table, vertex_normals  # noqa: F401  (re-exported)
+
 
 @dataclass(frozen=True)
 class BodyState:
@@ -260,44 +262,6 @@ def to_homogeneous(T: Tensor) -> Tensor:
     bottom = torch.zeros(T.shape[:-2] + (1, 4), dtype=T.dtype, device=T.device)
     bottom[..., 0, 3] = 1.0
     return torch.cat([T, bottom], -2)
-
-
-def vertex_face_table(faces: Tensor, num_verts: int) -> Tensor:
-    """Incident faces of each vertex, padded with the index F, shape (V, max degree) int64.
-
-    Precompute once per topology for `vertex_normals(..., table=...)`."""
-    F = faces.shape[0]
-    v = faces.reshape(-1).cpu()
-    f = torch.arange(F).repeat_interleave(3)
-    order = torch.argsort(v, stable=True)
-    v, f = v[order], f[order]
-    deg = torch.bincount(v, minlength=num_verts)
-    start = torch.cumsum(deg, 0) - deg
-    slot = torch.arange(len(v)) - start[v]
-    table = torch.full((num_verts, int(deg.max()) if len(v) else 1), F, dtype=torch.long)
-    table[v, slot] = f
-    return table.to(faces.device)
-
-
-def vertex_normals(verts: Tensor, faces: Tensor, *, table: Tensor | None = None) -> Tensor:
-    """Area-weighted unit vertex normals (outward for a consistently oriented closed surface).
-
-    Args:
-        verts: shape (B, V, 3); faces: shape (F, 3) int64.
-        table: optional `vertex_face_table(faces, V)` (faster).
-    Returns:
-        shape (B, V, 3); an isolated vertex gets a zero normal.
-    """
-    v0, v1, v2 = verts[:, faces[:, 0]], verts[:, faces[:, 1]], verts[:, faces[:, 2]]
-    fn = torch.linalg.cross(v1 - v0, v2 - v0)  # 2 * area * unit normal
-    if table is None:
-        n = torch.zeros_like(verts)
-        for k in range(3):
-            n = n.index_add(1, faces[:, k], fn)
-    else:
-        fn = torch.cat([fn, fn.new_zeros(fn.shape[0], 1, 3)], 1)
-        n = fn[:, table].sum(2)
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(verts.dtype).tiny ** 0.5)
 
 
 def check_batch(x: Tensor, name: str, trailing: tuple[int, ...], *, batch_size: int | None = None) -> None:

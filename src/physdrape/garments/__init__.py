@@ -1,7 +1,7 @@
 """Garments: procedural generator, the seeded split, loaders, remeshing, validation.
 
 Public API (y-up metres on the canonical Anny body):
-    GarmentCategory, GarmentParams, Garment, sample_params, generate_garment,
+    GarmentCategory, GarmentParams, GarmentTemplate, sample_params, generate_garment,
     generate_valid_garment, generate_batch           - procedural tops (generator.py)
     make_split, load_split                           - the 600/30 split (split.py)
     load_template, write_ply, read_ply               - OBJ/PLY templates (io.py)
@@ -11,13 +11,17 @@ Public API (y-up metres on the canonical Anny body):
     remesh                                           - isotropic remeshing keeping boundaries
     validate_garment, ValidationReport, GarmentError - checks with a readable report
     render_contact_sheet                             - PNG grid on the body (contact_sheet.py)
+
+Also (not re-exported): `generator.canonical_body` (the Anny body as the generator sees it),
+`intersections` (self-intersections, ray hits) and `numpy_geometry` (numpy front-ends of
+`physdrape.geometry`'s vertex normals and body distances).
 """
 
 from physdrape.garments.cloth3d import list_cloth3d_garments, load_cloth3d_garment
 from physdrape.garments.contact_sheet import render_contact_sheet
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
-    Garment,
+    GarmentTemplate,
     GarmentCategory,
     GarmentParams,
     generate_batch,
@@ -32,8 +36,8 @@ from physdrape.garments.split import load_split, make_split
 from physdrape.garments.validate import GarmentError, ValidationReport, validate_garment
 
 __all__ = [
-    "COLLISION_MARGIN", "default_garment", "Garment", "GarmentCategory", "GarmentParams", "GarmentError",
-    "ValidationReport", "fit_mhclo", "generate_batch", "generate_garment",
+    "COLLISION_MARGIN", "default_garment", "GarmentTemplate", "GarmentCategory", "GarmentParams",
+    "GarmentError", "ValidationReport", "fit_mhclo", "generate_batch", "generate_garment",
     "generate_valid_garment", "list_cloth3d_garments", "load_cloth3d_garment", "load_mhclo",
     "load_split", "load_template", "make_split", "read_mhclo", "read_ply", "remesh",
     "render_contact_sheet", "sample_params", "validate_garment", "write_ply",

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from physdrape.garments.generator import Garment
+from physdrape.garments.generator import GarmentTemplate
 from physdrape.geometry.mesh import MeshError, read_mesh
 
 __all__ = ["read_cloth3d_info", "list_cloth3d_garments", "load_cloth3d_garment", "UPPER_BODY_GARMENTS"]
@@ -71,7 +71,7 @@ def list_cloth3d_garments(sample_dir: str | os.PathLike, *, upper_body_only: boo
 
 def load_cloth3d_garment(
     sample_dir: str | os.PathLike, garment: str | None = None, *, target_edge: float | None = None
-) -> Garment:
+) -> GarmentTemplate:
     """Load one rest-pose (T-pose) garment of a CLOTH3D sample.
 
     Args:
@@ -105,7 +105,7 @@ def load_cloth3d_garment(
         shape=np.asarray(info.get("shape", np.zeros(10)), np.float64).ravel(),
         frame="CLOTH3D T-pose (SMPL body of the sample)",
     )
-    g = Garment(verts=verts, faces=faces, name=f"{sample_dir.name}_{garment}", meta=meta)
+    g = GarmentTemplate(verts=verts, faces=faces, name=f"{sample_dir.name}_{garment}", meta=meta)
     if target_edge is not None:
         from physdrape.garments.remesh import remesh
 

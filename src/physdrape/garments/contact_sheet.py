@@ -82,7 +82,7 @@ def render_contact_sheet(
     import matplotlib.pyplot as plt
 
     if body is None:
-        from physdrape.garments._body import canonical_body
+        from physdrape.garments.generator import canonical_body
 
         b = canonical_body()
         body = (b.verts, b.faces)

@@ -26,29 +26,36 @@ Positions y-up, metres, body facing +z.
 from __future__ import annotations
 
 import enum
+import functools
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
-from physdrape.garments._body import CanonicalBody, canonical_body
-from physdrape.garments._meshutil import (
-    adjacency,
-    edges_with_counts,
-    largest_component,
-    vertex_normals,
-)
+from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces
+from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
 from physdrape.garments.remesh import remesh
+from physdrape.geometry.mesh import face_areas
+from physdrape.geometry.topology import (
+    boundary_edges,
+    boundary_loops,
+    connected_components,
+    drop_unused_vertices,
+    undirected_edges,
+    vertex_adjacency,
+)
 
 __all__ = [
     "GarmentCategory",
     "GarmentParams",
-    "Garment",
+    "GarmentTemplate",
     "sample_params",
     "generate_garment",
     "generate_batch",
     "generate_valid_garment",
     "COLLISION_MARGIN",
+    "CanonicalBody",
+    "canonical_body",
 ]
 
 #: Minimum clearance between a generated garment and the canonical body [m] (DESIGN: ε = 2 mm).
@@ -117,8 +124,11 @@ class GarmentParams:
 
 
 @dataclass
-class Garment:
-    """A garment template: the rest mesh on the canonical body.
+class GarmentTemplate:
+    """A garment template: the rest mesh on the canonical body (numpy, as authored or loaded).
+
+    `physdrape.geometry.garment.Garment.from_mesh(t.verts, t.faces, name=t.name)` turns it into
+    the rest state the physics and the network read.
 
     Attributes:
         verts: rest positions [m], shape (V, 3) float64, y-up.
@@ -176,21 +186,60 @@ def sample_params(category: GarmentCategory | str, seed: int, *, attempt: int = 
     )
 
 
+# ----------------------------------------------------------------------------- the body
+@dataclass(frozen=True)
+class CanonicalBody:
+    """What the generator needs of the canonical body, as numpy (y-up metres, facing +z).
+
+    Attributes:
+        verts: vertex positions [m], shape (Vb, 3) float64.
+        faces: triangles, shape (Fb, 3) int64.
+        joints: joint (bone head) positions [m] by bone name, each shape (3,).
+        vertex_bone: dominant bone per vertex, shape (Vb,) int64 into bone_labels.
+        bone_labels: bone names of the rig.
+    """
+
+    verts: np.ndarray
+    faces: np.ndarray
+    joints: dict
+    vertex_bone: np.ndarray
+    bone_labels: tuple
+
+
+@functools.lru_cache(maxsize=1)
+def canonical_body() -> CanonicalBody:
+    """The canonical body, `physdrape.body.anny_body.get_anny_body()` with all phenotypes 0.5 in
+    its rest pose (built once per process)."""
+    import torch
+
+    from physdrape.body.anny_body import get_anny_body
+
+    anny = get_anny_body()
+    with torch.no_grad():
+        shape = anny.default_shape(1, dtype=torch.float64)
+        joints = anny.rest_joints(shape)[0].numpy()
+        return CanonicalBody(
+            verts=anny.canonical_verts(dtype=torch.float64).numpy(),
+            faces=anny.faces.numpy().astype(np.int64),
+            joints={name: joints[i] for i, name in enumerate(anny.joint_names)},
+            vertex_bone=anny.vertex_part().numpy().astype(np.int64),
+            bone_labels=tuple(anny.joint_names),
+        )
+
+
 # ----------------------------------------------------------------------------- body fields
 class _BodyFields:
     """Per-body-vertex quantities the coverage field is built from (computed once per body)."""
 
     def __init__(self, body: CanonicalBody):
-        from physdrape.garments._query import BodyQuery
-
         self.body = body
         v = body.verts
         labels = np.array(body.bone_labels)
         is_arm_bone = np.array([lab.startswith(_ARM_PREFIXES) for lab in labels])
         dom_arm = is_arm_bone[body.vertex_bone].astype(np.float64)
         # Smooth the 0/1 arm label over the surface: a soft arm-ness whose 0.5 level is smooth.
-        e, _ = edges_with_counts(body.faces)
-        adj = adjacency(len(v), e)
+        e = undirected_edges(body.faces)
+        adj = vertex_adjacency(len(v), e)
         deg = np.asarray(adj.sum(1)).ravel()
         walk = sp.diags(1.0 / deg) @ adj
         w = dom_arm
@@ -232,11 +281,11 @@ class _BodyFields:
         for _ in range(20):
             xs = xs + keep_arm * (walk @ xs - xs)
         self.smooth_verts = xs
-        self.smooth_query = BodyQuery(xs, body.faces)
+        self.smooth_query = BodyDistance(xs, body.faces)
         self.neck_center = joints["neck01"].copy()
         self.neck_base = float(joints["neck01"][1]) - 0.035
         self.shoulders = {sgn: joints["upperarm01" + sfx] for sfx, sgn in ((".L", 1.0), (".R", -1.0))}
-        self.query = BodyQuery(body.verts, body.faces)
+        self.query = BodyDistance(body.verts, body.faces)
         self.edges = e
         # Inner-elbow creases: the surface point on the concave side of the elbow bend, and its
         # arm coordinate s (long sleeves cut and web it like the armpit).
@@ -330,7 +379,14 @@ def clip_mesh(verts: np.ndarray, faces: np.ndarray, phi: np.ndarray) -> tuple[np
     tri3 = np.stack([ab[two], c[two], ac[two]], 1)
     all_v = np.concatenate([verts, new_v])
     all_f = np.concatenate([keep, tri1, tri2, tri3]).astype(np.int64)
-    return largest_component(all_v, all_f)
+    return _largest_component(all_v, all_f)
+
+
+def _largest_component(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The face-connected component with the largest area, unused vertices dropped."""
+    face_label = connected_components(len(verts), faces)[faces[:, 0]]
+    keep = face_label == np.bincount(face_label, weights=face_areas(verts, faces)).argmax()
+    return drop_unused_vertices(verts, faces[keep])
 
 
 def _crease_holes(p: GarmentParams, f: _BodyFields) -> list:
@@ -347,8 +403,6 @@ def _crease_holes(p: GarmentParams, f: _BodyFields) -> list:
 def _fill_pits(verts: np.ndarray, faces: np.ndarray, f: _BodyFields, holes: list):
     """Fill the armpit holes with a fan around the loop's centroid (the remesher refines it and
     the shrink-wrap turns it into a web bridging the armpit crease)."""
-    from physdrape.garments._meshutil import boundary_loops
-
     loops = boundary_loops(faces)
     directed = {(int(a), int(b)) for a, b in np.concatenate(
         [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])}
@@ -374,13 +428,13 @@ def _fill_pits(verts: np.ndarray, faces: np.ndarray, f: _BodyFields, holes: list
 def _smoother(faces: np.ndarray, nv: int):
     """One smoothing sweep: Laplacian on interior vertices (bridges concavities), Taubin λ|μ
     along boundary loops (smooths the loop without shrinking it). Returns (sweep, adjacency)."""
-    e, counts = edges_with_counts(faces)
-    be = e[counts == 1]
+    e = undirected_edges(faces)
+    be = boundary_edges(faces)
     on_b = np.zeros(nv, bool)
     on_b[be.ravel()] = True
 
     def walk_of(edges, rows):
-        w = adjacency(nv, edges)
+        w = vertex_adjacency(nv, edges)
         walk = sp.diags(1.0 / np.maximum(np.asarray(w.sum(1)).ravel(), 1)) @ w
         return (sp.diags(rows.astype(float)) @ walk + sp.diags((~rows).astype(float))).tocsr()
 
@@ -392,7 +446,7 @@ def _smoother(faces: np.ndarray, nv: int):
         x = x + 0.5 * (w_b @ x - x)
         return x - 0.53 * (w_b @ x - x)
 
-    return sweep, adjacency(nv, e)
+    return sweep, vertex_adjacency(nv, e)
 
 
 def _shrink_wrap(
@@ -437,8 +491,6 @@ def _untangle(x, faces, sweep, adj, f: _BodyFields, *, rounds: int = 15) -> np.n
     crease is bridged instead of pushed apart) and pushes out, along the sheet's own normal,
     only the vertices closer to the body than the margin.
     """
-    from physdrape.garments._query import self_intersecting_faces
-
     clear = COLLISION_MARGIN + 1e-3
     for _ in range(rounds):
         bad = self_intersecting_faces(x, faces)
@@ -473,7 +525,7 @@ def generate_garment(
     target_edge: float = 0.015,
     body: CanonicalBody | None = None,
     wrap_iterations: int = 40,
-) -> Garment:
+) -> GarmentTemplate:
     """Build the template mesh of one procedural garment on the canonical body.
 
     Args:
@@ -511,7 +563,7 @@ def generate_garment(
     # Never offset more than ~0.4 of the free space in front of the body (the gap to the next
     # body part along the normal): arm and torso sheets then cannot cross under the armpit.
     _, c, n = f.query(v)
-    gap = f.query.ray_distance(c + 1e-4 * n, n, max_t=1.0)
+    gap = ray_hit_distances(body.verts, body.faces, c + 1e-4 * n, n, max_t=1.0)
     offset = np.maximum(np.minimum(offset, 0.4 * gap), COLLISION_MARGIN + 1e-3)
     weight = np.clip(1.0 - arm, 0.0, 1.0) ** 2 * 0.9 + 0.1
     # Start from the patch offset along its own normals (plus how deep the smoothed patch sank
@@ -520,7 +572,7 @@ def generate_garment(
     sink = np.clip(-f.query(v)[0], 0.0, None)
     v = v + vertex_normals(v, fa) * (offset + sink)[:, None]
     v = _shrink_wrap(v, fa, offset, f, iterations=wrap_iterations, smooth_weight=weight)
-    return Garment(verts=v, faces=fa, params=params, name=f"{params.category.value}_{params.seed}")
+    return GarmentTemplate(verts=v, faces=fa, params=params, name=f"{params.category.value}_{params.seed}")
 
 
 def generate_valid_garment(
@@ -530,7 +582,7 @@ def generate_valid_garment(
     target_edge: float = 0.015,
     max_attempts: int = 12,
     body: CanonicalBody | None = None,
-) -> tuple[Garment, int]:
+) -> tuple[GarmentTemplate, int]:
     """The first parameter draw (attempt 0, 1, ...) of `seed` whose garment passes validation.
 
     Returns:
@@ -553,7 +605,7 @@ def generate_valid_garment(
 
 def generate_batch(
     seed: int, count: int, *, target_edge: float = 0.015, categories=None
-) -> list[Garment]:
+) -> list[GarmentTemplate]:
     """`count` valid garments cycling through `categories` (default all), seeds from `seed`."""
     cats = list(GarmentCategory) if categories is None else [GarmentCategory(c) for c in categories]
     out = []

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from physdrape.garments.generator import Garment
+from physdrape.garments.generator import GarmentTemplate
 from physdrape.geometry.mesh import MeshError, read_mesh
 
 __all__ = ["load_template", "write_ply", "read_ply", "sha256_file", "default_garment"]
 
 
-def load_template(path: str | os.PathLike, *, validate: bool = True, body=None) -> Garment:
+def load_template(path: str | os.PathLike, *, validate: bool = True, body=None) -> GarmentTemplate:
     """Load a garment template (.obj or .ply, metres, y-up) and check it.
 
     Args:
@@ -32,7 +32,7 @@ def load_template(path: str | os.PathLike, *, validate: bool = True, body=None) 
     """
     path = Path(path)
     verts, faces = read_mesh(path)
-    g = Garment(verts=verts, faces=faces, name=path.stem)
+    g = GarmentTemplate(verts=verts, faces=faces, name=path.stem)
     if validate:
         from physdrape.garments.validate import validate_garment
 
@@ -91,11 +91,11 @@ def sha256_file(path: str | os.PathLike) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def default_garment() -> Garment:
+def default_garment() -> GarmentTemplate:
     """The bundled default template: a T-shirt on the canonical body (the split's first test
     garment, seed 0), about 3k vertices, 1.5 cm edges, y-up metres."""
     from importlib.resources import files
 
     res = files("physdrape") / "assets" / "garments" / "tshirt_default.ply"
     verts, faces = read_ply(Path(str(res)))
-    return Garment(verts=verts, faces=faces, name="tshirt_default")
+    return GarmentTemplate(verts=verts, faces=faces, name="tshirt_default")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from physdrape.garments.generator import Garment
+from physdrape.garments.generator import GarmentTemplate
 from physdrape.geometry.mesh import MeshError, read_obj
 
 __all__ = ["MhcloBinding", "read_mhclo", "fit_mhclo", "load_mhclo", "resolve_body_penetration"]
@@ -139,7 +139,7 @@ def load_mhclo(
     hm08: np.ndarray | None = None,
     target_edge: float | None = 0.015,
     resolve_margin: float | None = 2e-3,
-) -> Garment:
+) -> GarmentTemplate:
     """Load a MakeHuman garment and refit it onto an Anny body.
 
     Args:
@@ -165,24 +165,36 @@ def load_mhclo(
             "the .mhclo and .obj do not belong together"
         )
     if hm08 is None:
-        from physdrape.garments._body import hm08_verts  # TODO(body): AnnyBody's hm08 method
-
-        hm08 = hm08_verts(phenotype)
+        hm08 = _anny_hm08_verts(phenotype or {})
     verts = fit_mhclo(b, hm08)
-    g = Garment(verts=verts, faces=faces, name=b.name, meta={"source": str(path)})
+    g = GarmentTemplate(verts=verts, faces=faces, name=b.name, meta={"source": str(path)})
     if target_edge is not None:
         from physdrape.garments.remesh import remesh
 
         g.verts, g.faces = remesh(verts, faces, target_edge=target_edge)
         g.meta["remeshed"] = target_edge
     if resolve_margin is not None:
-        from physdrape.garments._body import body_surface_from_hm08
+        from physdrape.body.anny_body import get_anny_body
 
+        anny = get_anny_body()  # its closed skin is a subset of hm08's vertices
+        body_verts = np.asarray(hm08, np.float64)[anny.hm08_ids.numpy()]
         g.verts, moved = resolve_body_penetration(
-            g.verts, g.faces, *body_surface_from_hm08(hm08), margin=resolve_margin
+            g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin
         )
         g.meta["resolved_verts"] = int(moved)
     return g
+
+
+def _anny_hm08_verts(phenotype: dict) -> np.ndarray:
+    """The Anny body of `phenotype` (names -> [0, 1], missing ones 0.5) on hm08 [m], (19158, 3)."""
+    import torch
+
+    from physdrape.body.anny_body import get_anny_body
+
+    anny = get_anny_body()
+    with torch.no_grad():
+        shape = anny.shape_from_dict({k: float(v) for k, v in phenotype.items()}, dtype=torch.float64)
+        return anny.hm08_verts(shape)[0].numpy()
 
 
 def resolve_body_penetration(
@@ -204,13 +216,12 @@ def resolve_body_penetration(
     Returns:
         (new positions [m] (V, 3), number of vertices that were moved).
     """
-    from physdrape.garments._meshutil import adjacency, edges_with_counts
-    from physdrape.garments._query import BodyQuery  # TODO(proximity): geometry.proximity
+    from physdrape.geometry.topology import undirected_edges, vertex_adjacency
+    from physdrape.garments.numpy_geometry import BodyDistance
 
-    q = BodyQuery(body_verts, body_faces)
+    q = BodyDistance(body_verts, body_faces)
     x = np.array(verts, np.float64)
-    e, _ = edges_with_counts(np.asarray(faces, np.int64))
-    adj = adjacency(len(x), e)
+    adj = vertex_adjacency(len(x), undirected_edges(np.asarray(faces, np.int64)))
     deg = np.maximum(np.asarray(adj.sum(1)).ravel(), 1)
     moved = np.zeros(len(x), bool)
     for _ in range(rounds):

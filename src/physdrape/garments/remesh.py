@@ -12,11 +12,11 @@ import warnings
 
 import numpy as np
 
-from physdrape.garments._meshutil import (
+from physdrape.geometry.topology import (
     boundary_edges,
-    compact,
     connected_components,
-    edges_with_counts,
+    drop_unused_vertices,
+    undirected_edges,
 )
 
 __all__ = ["remesh", "mean_edge_length"]
@@ -24,7 +24,7 @@ __all__ = ["remesh", "mean_edge_length"]
 
 def mean_edge_length(verts: np.ndarray, faces: np.ndarray) -> float:
     """Mean length of the unique edges [m]."""
-    e, _ = edges_with_counts(faces)
+    e = undirected_edges(faces)
     return float(np.linalg.norm(verts[e[:, 0]] - verts[e[:, 1]], axis=1).mean())
 
 
@@ -55,12 +55,12 @@ def remesh(
         ) from err
     if target_edge <= 0:
         raise ValueError(f"target_edge must be > 0 [m], got {target_edge}")
-    v, f = compact(np.asarray(verts, np.float64), np.asarray(faces, np.int64))
-    _, lab = connected_components(len(v), f)
+    v, f = drop_unused_vertices(np.asarray(verts, np.float64), np.asarray(faces, np.int64))
+    lab = connected_components(len(v), f)
     flab = lab[f[:, 0]]
     out_v, out_f, n = [], [], 0
     for comp in np.unique(flab):  # one component at a time (the C++ remesher is per surface)
-        cv, cf = compact(v, f[flab == comp])
+        cv, cf = drop_unused_vertices(v, f[flab == comp])
         try:
             rv, rf = _remesh_component(gpytoolbox, cv, cf, target_edge, iterations)
         except (MemoryError, RuntimeError, ValueError) as err:
@@ -102,4 +102,4 @@ def _remesh_component(gpytoolbox, v, f, target_edge, iterations):
         project=True,
         feature_edges=np.ascontiguousarray(be.astype(np.int32)) if len(be) else None,
     )
-    return compact(np.asarray(u, np.float64), np.asarray(g, np.int64))
+    return drop_unused_vertices(np.asarray(u, np.float64), np.asarray(g, np.int64))

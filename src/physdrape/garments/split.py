@@ -20,7 +20,7 @@ import numpy as np
 
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
-    Garment,
+    GarmentTemplate,
     GarmentCategory,
     GarmentParams,
     generate_valid_garment,
@@ -93,9 +93,9 @@ def make_split(
     if workers > 1:
         import multiprocessing as mp
 
-        from physdrape.garments._body import canonical_body
+        from physdrape.garments.generator import canonical_body
 
-        canonical_body()  # build / read the cache once before forking
+        canonical_body()  # load the body once before forking
         with mp.get_context("fork").Pool(workers) as pool:
             rows = []
             for k, r in enumerate(pool.imap(_make_one, jobs, chunksize=4)):
@@ -126,7 +126,9 @@ def make_split(
     return manifest
 
 
-def load_split(split_dir: str | os.PathLike, subset: str = "test", *, verify: bool = True) -> list[Garment]:
+def load_split(
+    split_dir: str | os.PathLike, subset: str = "test", *, verify: bool = True
+) -> list[GarmentTemplate]:
     """Load one subset ("train" / "test") of a split written by `make_split`.
 
     Raises:
@@ -149,7 +151,7 @@ def load_split(split_dir: str | os.PathLike, subset: str = "test", *, verify: bo
         if verify and sha256_file(path) != row["sha256"]:
             raise ValueError(f"{path}: sha256 differs from the manifest; the file changed - regenerate the split")
         v, f = read_ply(path)
-        out.append(Garment(verts=v, faces=f, params=GarmentParams.from_dict(row["params"]),
+        out.append(GarmentTemplate(verts=v, faces=f, params=GarmentParams.from_dict(row["params"]),
                            name=Path(row["file"]).stem, meta=dict(row)))
     return out
 

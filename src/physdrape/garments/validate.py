@@ -16,13 +16,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from physdrape.garments._meshutil import (
+from physdrape.garments.intersections import self_intersecting_faces
+from physdrape.garments.numpy_geometry import BodyDistance
+from physdrape.geometry.mesh import MAX_GARMENT_EXTENT_M, MeshError, face_areas
+from physdrape.geometry.topology import (
     boundary_loops,
     connected_components,
-    edges_with_counts,
-    face_areas,
+    non_manifold_edges,
+    undirected_edges,
 )
-from physdrape.geometry.mesh import MAX_GARMENT_EXTENT_M, MeshError
 
 __all__ = ["GarmentError", "ValidationReport", "validate_garment", "body_penetration"]
 
@@ -153,9 +155,7 @@ def body_penetration(
 ) -> tuple[np.ndarray, float]:
     """Signed vertex distances to a closed body [m] (V,) and the area share of garment faces
     whose centroid is inside the body (winding number; no margin)."""
-    from physdrape.garments._query import BodyQuery  # TODO(proximity): geometry.proximity
-
-    q = BodyQuery(body_verts, body_faces)
+    q = BodyDistance(body_verts, body_faces)
     d = q(verts)[0]
     dc = q(verts[faces].mean(1))[0]
     a = face_areas(verts, faces)
@@ -216,18 +216,18 @@ def validate_garment(
     unused = len(verts) - len(used)
     if unused:
         r.warnings.append(f"{unused} vertices are used by no face")
-    e, counts = edges_with_counts(faces)
+    e = undirected_edges(faces)
     lengths = np.linalg.norm(verts[e[:, 0]] - verts[e[:, 1]], axis=1)
     r.mean_edge, r.min_edge, r.max_edge = float(lengths.mean()), float(lengths.min()), float(lengths.max())
     r.euler = int(len(used) - len(e) + len(faces))
-    r.non_manifold_edges = e[counts > 2]
+    r.non_manifold_edges = non_manifold_edges(faces)
     if len(r.non_manifold_edges):
         pairs = ", ".join(f"({a}, {b})" for a, b in r.non_manifold_edges[:8])
         r.errors.append(f"{len(r.non_manifold_edges)} edges are shared by more than two faces: {pairs}")
     r.non_manifold_verts = _non_manifold_verts(len(verts), faces)
     if len(r.non_manifold_verts):
         r.errors.append(f"non-manifold (bow-tie) vertices {_show(r.non_manifold_verts)}")
-    ncomp, lab = connected_components(len(verts), faces)
+    lab = connected_components(len(verts), faces)
     r.num_components = int(len(np.unique(lab[used])))
     if r.num_components > 1:
         r.warnings.append(f"{r.num_components} connected components")
@@ -257,14 +257,12 @@ def validate_garment(
     if len(r.sliver_faces):
         r.warnings.append(f"{len(r.sliver_faces)} sliver faces (an angle < {SLIVER_ANGLE_DEG}°): {_show(r.sliver_faces)}")
     if check_self_intersections and not r.errors:
-        from physdrape.garments._query import self_intersecting_faces
-
         r.self_intersecting_faces = self_intersecting_faces(verts, faces)
         if len(r.self_intersecting_faces):
             r.errors.append(f"self-intersecting faces {_show(r.self_intersecting_faces)}")
     if body is not False and r.extent <= MAX_GARMENT_EXTENT_M:
         if body is None:
-            from physdrape.garments._body import canonical_body
+            from physdrape.garments.generator import canonical_body
 
             cb = canonical_body()
             body = (cb.verts, cb.faces)

@@ -16,6 +16,7 @@ from torch import Tensor
 
 from physdrape.geometry import topology
 from physdrape.geometry.mesh import check_mesh
+from physdrape.geometry.normals import vertex_normals  # noqa: F401  (re-exported: its old home)
 
 
 def rest_frames(rest: Tensor, faces: Tensor) -> tuple[Tensor, Tensor]:
@@ -42,20 +43,6 @@ def rest_frames(rest: Tensor, faces: Tensor) -> tuple[Tensor, Tensor]:
         dim=-2,
     )
     return torch.linalg.inv(dm), 0.5 * double_area
-
-
-def vertex_normals(x: Tensor, faces: Tensor) -> Tensor:
-    """Area-weighted unit vertex normals, x of shape (..., V, 3) → (..., V, 3).
-
-    Follows the faces' winding (counter-clockwise seen from the side the normal points to).
-    A vertex in no face gets a zero normal.
-    """
-    x0, x1, x2 = x[..., faces[:, 0], :], x[..., faces[:, 1], :], x[..., faces[:, 2], :]
-    face_n = torch.linalg.cross(x1 - x0, x2 - x0)  # length = 2 × area: area weighting
-    normals = torch.zeros_like(x)
-    flat = faces.reshape(-1)
-    normals.index_add_(-2, flat, face_n.repeat_interleave(3, dim=-2))
-    return normals / normals.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
 
 
 @dataclass(frozen=True)

@@ -105,3 +105,27 @@ def connected_components(num_verts: int, faces: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(num_verts, num_verts))
     _, labels = cc(graph, directed=False)
     return labels.astype(np.int64)
+
+
+def vertex_adjacency(num_verts: int, edges: np.ndarray):
+    """Symmetric 0/1 vertex adjacency of undirected `edges` (E, 2), a scipy CSR matrix (V, V)."""
+    from scipy.sparse import coo_matrix
+
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    rows = np.concatenate([edges[:, 0], edges[:, 1]])
+    cols = np.concatenate([edges[:, 1], edges[:, 0]])
+    adjacency = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_verts, num_verts)).tocsr()
+    adjacency.data[:] = 1.0
+    return adjacency
+
+
+def drop_unused_vertices(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh without the vertices no face uses (the others keep their order).
+
+    Returns:
+        verts: shape (V', 3); faces: shape (F, 3) int64, re-indexed.
+    """
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return verts[used], remap[faces]

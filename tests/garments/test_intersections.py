@@ -1,0 +1,48 @@
+"""The garment-side queries: ray hits, self-intersections, and the numpy front-ends."""
+
+import numpy as np
+import torch
+
+from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces
+from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
+from physdrape.geometry.garment import vertex_normals as torch_vertex_normals
+
+
+def _cube(half=0.1):
+    """A closed, outward-wound cube of side 2 * half [m]."""
+    v = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-half, half)], float)
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, f
+
+
+def test_ray_hit_distances():
+    v, f = _cube()
+    origins = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.5, 0.5, 0.5]])
+    dirs = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    t = ray_hit_distances(v, f, origins, dirs, max_t=2.0)
+    np.testing.assert_allclose(t, [0.4, 2.0, 2.0], atol=1e-6)  # hit, pointing away, missing
+    assert ray_hit_distances(v, f, np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
+
+
+def test_no_self_intersection_on_a_closed_cube():
+    v, f = _cube()
+    assert len(self_intersecting_faces(v, f)) == 0
+    assert len(self_intersecting_faces(v, f[:0])) == 0
+
+
+def test_body_distance_sign_and_normal():
+    v, f = _cube()
+    d, closest, normal = BodyDistance(v, f)(np.array([[0.0, 0.0, 0.15], [0.0, 0.0, 0.05]]))
+    np.testing.assert_allclose(d, [0.05, -0.05], atol=1e-12)  # negative inside
+    np.testing.assert_allclose(closest, [[0, 0, 0.1], [0, 0, 0.1]], atol=1e-12)
+    np.testing.assert_allclose(normal, [[0, 0, 1], [0, 0, 1]], atol=1e-12)
+
+
+def test_numpy_vertex_normals_are_the_torch_ones():
+    v, f = _cube()
+    n = vertex_normals(v, f)
+    assert n.dtype == np.float64 and n.shape == v.shape
+    np.testing.assert_array_equal(n, torch_vertex_normals(torch.from_numpy(v), torch.from_numpy(f)).numpy())
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    assert ((n * v).sum(1) > 0).all()  # outward
