@@ -5,3 +5,13 @@ Conventions (see DESIGN.md): SI units, world frame y-up, metres; the dtype follo
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """Lazy re-exports of the public API (`physdrape.drape`, `physdrape.Draper`), so that
+    `import physdrape` stays cheap."""
+    if name in ("drape", "Draper", "DrapeResult"):
+        from physdrape import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'physdrape' has no attribute {name!r}")

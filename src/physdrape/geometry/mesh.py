@@ -8,10 +8,11 @@ raises `MeshError` naming the faces or vertices at fault and what to do about th
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from physdrape.atomic import write_bytes
 
 #: A garment wider than this [m] is almost certainly not in metres (a 170-unit body is in cm).
 MAX_GARMENT_EXTENT_M = 3.0
@@ -95,24 +96,16 @@ def write_mesh(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray) ->
     suffix = path.suffix.lower()
     verts = np.asarray(verts, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            if suffix == ".obj":
-                lines = [f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in verts]
-                lines += [f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces]
-                handle.write("".join(lines).encode())
-            elif suffix == ".ply":
-                import trimesh
+    if suffix == ".obj":
+        lines = [f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in verts]
+        lines += [f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces]
+        write_bytes(path, "".join(lines).encode())
+    elif suffix == ".ply":
+        import trimesh
 
-                handle.write(trimesh.Trimesh(verts, faces, process=False).export(file_type="ply"))
-            else:
-                raise MeshError(f"unsupported mesh format {suffix!r} for {path}: use .obj or .ply")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        write_bytes(path, trimesh.Trimesh(verts, faces, process=False).export(file_type="ply"))
+    else:
+        raise MeshError(f"unsupported mesh format {suffix!r} for {path}: use .obj or .ply")
 
 
 def face_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:

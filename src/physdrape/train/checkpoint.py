@@ -20,20 +20,13 @@ from pathlib import Path
 import torch
 from safetensors.torch import load_file, save_file
 
+from physdrape.atomic import write_text
+
 LATEST = "latest"
 
 
 class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read; the message says which file and what to do."""
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as handle:
-        handle.write(text)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
 
 
 def optimizer_to_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
@@ -92,7 +85,7 @@ def save_checkpoint(
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _atomic_write_text(run_dir / LATEST, final.name + "\n")
+    write_text(run_dir / LATEST, final.name + "\n")
     old = sorted(p for p in run_dir.glob("step-*") if p.is_dir())[:-keep] if keep > 0 else []
     for path in old:
         shutil.rmtree(path, ignore_errors=True)

@@ -8,10 +8,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from physdrape.atomic import atomic_path
 
 
 def read_metrics(path: str | os.PathLike) -> list[dict]:
@@ -58,16 +59,11 @@ def plot_metrics(records: list[dict], out: str | os.PathLike, *, window: int = 2
     ax.set_title("learned η [m/N], γ, δ")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".png", dir=out.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, out)
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
     finally:
         plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)
 
 
 def main(argv: list[str] | None = None) -> None:

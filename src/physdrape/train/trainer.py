@@ -17,6 +17,7 @@ from typing import Protocol
 
 import torch
 import torch.distributed as dist
+from physdrape.atomic import write_text
 from physdrape.config_io import to_mapping
 from physdrape.eval.metrics import b2g_percent
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape
@@ -138,7 +139,7 @@ class Trainer:
         path = self.run_dir / "metrics.jsonl"
         if self.rank == 0 and path.is_file():
             kept = [line for line in path.read_text().splitlines() if line and json.loads(line)["step"] <= self.step]
-            ckpt._atomic_write_text(path, "".join(line + "\n" for line in kept))
+            write_text(path, "".join(line + "\n" for line in kept))
 
     # ----------------------------------------------------------------------------- loop
     def _local_batch(self) -> DrapeInput:

@@ -1,0 +1,170 @@
+"""The Python API on a tiny test model: shapes, batching, materials, errors, saving, pictures."""
+
+from __future__ import annotations
+
+import re
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from physdrape import api
+from physdrape.api import DrapeError, Draper
+from physdrape.physics.material import Material
+from physdrape.physics.presets import MATERIAL_PRESETS, TRAINED_RANGES, material_preset
+
+
+def test_drape_returns_documented_shapes_and_dtypes(draper, anny_body):
+    [res] = draper.drape("default")
+    v = len(res.faces) and res.verts.shape[0]
+    assert res.verts.shape == (v, 3) and res.verts.dtype == np.float32
+    assert res.x_init.shape == (v, 3) and res.faces.dtype == np.int64 and res.faces.shape[1] == 3
+    assert res.body_verts.shape == (anny_body.num_verts, 3) and res.body_faces.shape == (anny_body.num_faces, 3)
+    assert res.vertex_residual.shape == (v,) and res.inside_faces.shape == (len(res.faces),)
+    assert set(res.metrics) == {"strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative"}
+    assert all(np.isfinite(x) for x in res.metrics.values())
+    assert {"body_s", "init_s", "model_s", "total_s", "per_garment_s"} <= set(res.timings)
+    assert np.isfinite(res.verts).all() and not np.allclose(res.verts, res.x_init)
+    assert res.pose == api.DEFAULT_POSE and res.material == Material()
+    mesh = res.to_trimesh()
+    assert mesh.vertices.shape == res.verts.shape and len(mesh.faces) == len(res.faces)
+
+
+def test_batch_equals_singles(draper):
+    batch = draper.drape(["default", "default"], material=["silk", "denim"], pose=["stand", "t-pose"])
+    singles = [draper.drape("default", material="silk", pose="stand")[0],
+               draper.drape("default", material="denim", pose="t-pose")[0]]
+    for b, s in zip(batch, singles):
+        np.testing.assert_allclose(b.verts, s.verts, atol=2e-5)
+        np.testing.assert_allclose(b.body_verts, s.body_verts, atol=1e-6)
+        assert b.metrics["strain"] == pytest.approx(s.metrics["strain"], rel=1e-3, abs=1e-7)
+
+
+def test_heavier_softer_material_sags_more(draper):
+    heavy_soft = Material(mu=1.59e4, lam=2.0e4, k_bend=1e-6, density=0.7)
+    light_stiff = Material(mu=6.36e4, lam=9.0e4, k_bend=1e-5, density=0.043)
+    heavy, light, silk, leather = draper.drape("default", material=[heavy_soft, light_stiff, "silk", "leather"],
+                                                steps=15)
+    assert heavy.verts[:, 1].mean() < light.verts[:, 1].mean() - 1e-5
+    assert np.abs(silk.verts - leather.verts).max() > 1e-4  # the preset reaches the physics
+
+
+def test_presets_inside_trained_ranges():
+    assert material_preset("cotton") == Material()  # SNUG's default
+    for name, m in MATERIAL_PRESETS.items():
+        for field, (lo, hi) in TRAINED_RANGES.items():
+            assert lo <= getattr(m, field) <= hi, (name, field)
+    densities = [m.density for m in MATERIAL_PRESETS.values()]
+    assert densities == sorted(densities)  # silk → leather, lightest first
+
+
+def test_skinning_transfer_is_cached(draper):
+    draper.drape("default")
+    count = len(draper._transfers)
+    draper.drape("default", pose="stand")
+    assert len(draper._transfers) == count
+
+
+def test_pose_specs(draper, anny_body):
+    rest = draper.poses("rest")[0].pose
+    assert rest.shape == (1, anny_body.num_joints, 3)
+    assert len(draper.poses(np.zeros((2, anny_body.num_joints, 3)))) == 2
+    assert draper.poses("random:3")[0].label == "random:3"
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "pattern"),
+    [
+        ({"material": "velvet"}, "silk, cotton, denim, leather"),
+        ({"pose": "dance"}, "choose one of rest, a-pose"),
+        ({"shape": {"weight": 1.5}}, r"outside \[0, 1\]"),
+        ({"shape": {"wieght": 0.5}}, "unknown phenotypes"),
+        ({"pose": np.zeros((3, 3))}, "axis-angles of shape"),
+        ({"garments": "no/such/file.obj"}, "neither a file"),
+        ({"garments": "hoodie:3"}, "CATEGORY:SEED"),
+    ],
+)
+def test_bad_input_names_problem_and_fix(draper, kwargs, pattern):
+    garments = kwargs.pop("garments", "default")
+    with pytest.raises(DrapeError, match=pattern):
+        draper.drape(garments, **kwargs)
+
+
+def test_garment_in_centimetres_is_refused(draper):
+    from physdrape.garments import default_garment
+
+    g = default_garment()
+    from physdrape.geometry.mesh import MeshError
+
+    with pytest.raises(MeshError, match="metres"):
+        draper.drape((g.verts * 100.0, g.faces))
+
+
+def test_missing_checkpoint_says_how_to_get_one(tmp_path, monkeypatch):
+    monkeypatch.setattr(api, "default_checkpoint", lambda: tmp_path / "nothing")
+    with pytest.raises(DrapeError, match="physdrape train"):
+        Draper()
+    with pytest.raises(DrapeError, match="does not exist"):
+        Draper(tmp_path / "missing")
+
+
+def test_save_is_complete_and_refuses_overwrite(draper, tmp_path):
+    [res] = draper.drape("default")
+    written = res.save(tmp_path)
+    assert sorted(p.name for p in written) == sorted(
+        ["garment.obj", "body.obj", "garment.ply", "body.ply", "drape.glb"])
+    import trimesh
+
+    back = trimesh.load(tmp_path / "garment.ply", process=False)
+    np.testing.assert_allclose(back.vertices, res.verts, atol=1e-6)
+    with pytest.raises(Exception, match="--force"):
+        res.save(tmp_path)
+    res.save(tmp_path, formats=("obj",), overwrite=True)
+
+
+def test_pictures(draper, tmp_path):
+    from physdrape.render import convergence_figure, material_sweep_figure
+
+    [res] = draper.drape("default", keep_trace=True)
+    assert len(res.convergence["energy"]) == draper.steps + 1
+    assert res.convergence["force"][-1] < res.convergence["force"][0]
+    assert res.render(tmp_path / "r.png", size=64).stat().st_size > 1000
+    assert res.render(tmp_path / "h.png", mode="residual", size=64).is_file()
+    assert convergence_figure(res, tmp_path / "c.png").is_file()
+    assert material_sweep_figure([res, res], ["a", "b"], tmp_path / "m.png", size=64).is_file()
+
+
+def test_readme_example_runs(tiny_checkpoint, anny_body, tmp_path, monkeypatch):
+    """The snippet of the `physdrape.api` docstring (the README's) runs as written."""
+    match = re.search(r"Example.*?::\n\n(.*?)\n\n(?=Conventions)", api.__doc__, re.DOTALL)
+    code = textwrap.dedent(match.group(1))
+    monkeypatch.setattr(api, "default_checkpoint", lambda: Path(tiny_checkpoint))
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README", "exec"), {})  # noqa: S102 - the snippet is our own docstring
+    assert (tmp_path / "out" / "drape.glb").is_file() and (tmp_path / "out" / "render.png").is_file()
+
+
+def test_module_level_drape_reuses_one_draper(tiny_checkpoint, anny_body, monkeypatch):
+    import physdrape
+
+    monkeypatch.setattr(api, "default_checkpoint", lambda: Path(tiny_checkpoint))
+    monkeypatch.setattr(api, "_DEFAULT_DRAPER", None)
+    [a] = physdrape.drape("default", pose="rest")
+    first = api._DEFAULT_DRAPER
+    [b] = physdrape.drape("default", pose="rest")
+    assert api._DEFAULT_DRAPER is first and physdrape.Draper is Draper
+    np.testing.assert_array_equal(a.verts, b.verts)
+
+
+def test_refine_polishes_with_the_oracle(draper):
+    [plain] = draper.drape("default")
+    [polished] = draper.drape("default", refine=True, refine_iters=1)
+    assert np.isfinite(polished.verts).all() and np.abs(polished.verts - plain.verts).max() > 1e-6
+    assert polished.timings["refine_s"] > 0
+
+
+def test_float64_follows_the_draper_dtype(anny_body, tiny_checkpoint):
+    [res] = Draper(tiny_checkpoint, steps=1, body=anny_body, dtype=torch.float64).drape("default")
+    assert res.verts.dtype == np.float64 and res.body_verts.dtype == np.float64
