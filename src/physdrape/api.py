@@ -170,10 +170,12 @@ class Draper:
         steps: explicit solver steps T at inference (paper: 15).
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use).
         dtype: dtype of garments, bodies and the solver (the network keeps its own).
+        check_pose: refuse (DrapeError) a pose whose arms pass through the torso
+            (`body.poses.arm_torso_penetration`), instead of draping it silently.
     """
 
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
-                 dtype: torch.dtype = torch.float32) -> None:
+                 dtype: torch.dtype = torch.float32, check_pose: bool = True) -> None:
         from physdrape.config_io import ConfigError, from_mapping
         from physdrape.model import PhysDrape
         from physdrape.model.config import ModelConfig
@@ -181,6 +183,7 @@ class Draper:
 
         if not isinstance(steps, int) or steps < 0:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
+        self.check_pose = check_pose
         if dtype not in (torch.float32, torch.float64):
             raise DrapeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         path = Path(checkpoint).expanduser() if checkpoint is not None else default_checkpoint()
@@ -458,6 +461,19 @@ class Draper:
             bar.close()
         return results
 
+    @staticmethod
+    def _refuse_penetrating_poses(state, body, labels: list[str]) -> None:
+        """A static drape cannot resolve cloth pinched between arm and torso: refuse such poses."""
+        from physdrape.body.poses import arm_torso_penetration
+
+        counts = arm_torso_penetration(state, body).tolist()
+        bad = [f"{label} ({count} arm vertices inside the body)" for label, count in zip(labels, counts) if count]
+        if bad:
+            raise DrapeError(
+                f"pose drives the arms through the torso: {'; '.join(bad)}. PhysDrape drapes static poses with "
+                "the arms clear of the body: choose another pose or frame (or Draper(check_pose=False) to drape anyway)"
+            )
+
     @torch.no_grad()
     def _drape_batch(self, jobs, shape: Tensor, *, steps: int, refine: bool, keep_trace: bool, refine_iters: int,
                      refine_time_s: float) -> list[DrapeResult]:
@@ -476,6 +492,8 @@ class Draper:
         poses = {id(job[1]): job[1] for job in jobs}
         pose_t = torch.cat([poses[k].pose for k in labels]).to(torch.float64)
         state = body(shape.expand(len(labels), -1), pose_t)
+        if self.check_pose:
+            self._refuse_penetrating_poses(state, body, [poses[k].label for k in labels])
         t1 = time.perf_counter()
         x_init, garments, mats, body_ids = [], [], [], []
         for template, bp, mat in jobs:

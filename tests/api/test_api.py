@@ -168,3 +168,13 @@ def test_refine_polishes_with_the_oracle(draper):
 def test_float64_follows_the_draper_dtype(anny_body, tiny_checkpoint):
     [res] = Draper(tiny_checkpoint, steps=1, body=anny_body, dtype=torch.float64).drape("default")
     assert res.verts.dtype == np.float64 and res.body_verts.dtype == np.float64
+
+
+def test_pose_with_arms_through_the_torso_is_refused(draper, anny_body):
+    pose = torch.zeros(anny_body.num_joints, 3, dtype=torch.float64)
+    pose[anny_body.joint_index("upperarm01.L"), 2] = -1.2  # both upper arms swung into the chest
+    pose[anny_body.joint_index("upperarm01.R"), 2] = 1.2
+    with pytest.raises(DrapeError, match="arms through the torso.*choose another pose"):
+        draper.drape("default", pose=pose.numpy())
+    unchecked = Draper(draper.checkpoint, check_pose=False)
+    assert len(unchecked.drape("default", pose=pose.numpy())) == 1

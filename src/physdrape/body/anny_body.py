@@ -95,6 +95,9 @@ _LOCK = threading.Lock()
 def _load(rig: str, topology: str, surface_only: bool) -> _AnnyData:
     if rig not in RIGS:
         raise ValueError(f"unknown Anny rig {rig!r}; expected one of {RIGS}")
+    from physdrape.warp_runtime import warp
+
+    warp()  # Anny uses Warp: start it here, quietly, before Anny does
     try:
         import anny
     except ImportError as e:  # pragma: no cover - anny is a hard dependency

@@ -22,10 +22,9 @@ _DEVICE = "cpu"
 @functools.cache
 def _warp():
     """Import warp and define the kernels (first call only; Warp caches the binaries on disk)."""
-    import warp as wp  # noqa: PLC0415  (heavy import, only needed for queries)
+    from physdrape.warp_runtime import warp
 
-    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner on stdout
-    wp.init()  # no-op when already initialised
+    wp = warp()
 
     @wp.kernel(enable_backward=False)
     def ray_kernel(

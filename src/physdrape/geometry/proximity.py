@@ -229,10 +229,9 @@ def _edge_neighbours(faces: np.ndarray) -> np.ndarray:
 @functools.cache
 def _warp():
     """Import warp and define the query kernels (first call only)."""
-    import warp as wp  # noqa: PLC0415  (heavy import, only needed for queries)
+    from physdrape.warp_runtime import warp
 
-    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner on stdout (the CLI prints JSON there)
-    wp.init()  # no-op when already initialised (e.g. by anny)
+    wp = warp()
 
     @wp.kernel(enable_backward=False)
     def closest_kernel(
