@@ -136,10 +136,15 @@ def test_pictures(draper, tmp_path):
     assert material_sweep_figure([res, res], ["a", "b"], tmp_path / "m.png", size=64).is_file()
 
 
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
 def test_readme_example_runs(tiny_checkpoint, anny_body, tmp_path, monkeypatch):
-    """The snippet of the `physdrape.api` docstring (the README's) runs as written."""
-    match = re.search(r"Example.*?::\n\n(.*?)\n\n(?=Conventions)", api.__doc__, re.DOTALL)
-    code = textwrap.dedent(match.group(1))
+    """The README's Python API block runs as written (and the API docstring shows the same code)."""
+    match = re.search(r"## Python API\n\n```python\n(.*?)```", README.read_text(), re.DOTALL)
+    code = match.group(1)
+    doc = re.search(r"Example.*?::\n\n(.*?)\n\n(?=Conventions)", api.__doc__, re.DOTALL)
+    assert textwrap.dedent(doc.group(1)).strip() == code.strip(), "README and api docstring examples differ"
     monkeypatch.setattr(api, "default_checkpoint", lambda: Path(tiny_checkpoint))
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README", "exec"), {})  # noqa: S102 - the snippet is our own docstring
