@@ -1,41 +1,8 @@
-"""A tiny random-init checkpoint (no dependence on the bundled model) and a Draper on it."""
+"""A Draper on the shared tiny test checkpoint (tests/conftest.py)."""
 
 from __future__ import annotations
 
 import pytest
-import torch
-
-
-def write_tiny_checkpoint(run_dir) -> str:
-    """A 1-block, width-8 PhysDrape whose decoder outputs zero (Δx = 0, f̂ = 0): the drape is X_init
-    relaxed by the explicit solver (η = 2e-3 m/N, stable for these tests' fabrics) plus the collision handler, so material effects are
-    the physics' own and deterministic."""
-    from physdrape.config_io import to_mapping
-    from physdrape.model import PhysDrape
-    from physdrape.model.config import ModelConfig
-    from physdrape.train.checkpoint import save_checkpoint
-
-    torch.manual_seed(0)
-    config = ModelConfig(latent=8, blocks=1, eta=2e-3)
-    model = PhysDrape(config)
-    last = [m for m in model.gnn.decoder.modules() if isinstance(m, torch.nn.Linear)][-1]
-    torch.nn.init.zeros_(last.weight)
-    torch.nn.init.zeros_(last.bias)
-    return str(save_checkpoint(run_dir, 0, model, {"train": {"model": to_mapping(config)}}, keep=1))
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One torch thread for these tests: on a shared 2-core machine it is markedly faster (DESIGN Sec. 5)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
-@pytest.fixture(scope="session")
-def tiny_checkpoint(tmp_path_factory) -> str:
-    return write_tiny_checkpoint(tmp_path_factory.mktemp("tiny_model"))
 
 
 @pytest.fixture(scope="session")
