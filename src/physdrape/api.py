@@ -172,10 +172,14 @@ class Draper:
         dtype: dtype of garments, bodies and the solver (the network keeps its own).
         check_pose: refuse (DrapeError) a pose whose arms pass through the torso
             (`body.poses.arm_torso_penetration`), instead of draping it silently.
+        arm_contact_tolerance: arm vertices (of those the check samples, every 4th) allowed
+            inside the body before a pose is refused: a hand resting on a hip is contact, an arm
+            swung into the chest is not (it puts 50-150 inside).
     """
 
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
-                 dtype: torch.dtype = torch.float32, check_pose: bool = True) -> None:
+                 dtype: torch.dtype = torch.float32, check_pose: bool = True,
+                 arm_contact_tolerance: int = 20) -> None:
         from physdrape.config_io import ConfigError, from_mapping
         from physdrape.model import PhysDrape
         from physdrape.model.config import ModelConfig
@@ -184,6 +188,7 @@ class Draper:
         if not isinstance(steps, int) or steps < 0:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         self.check_pose = check_pose
+        self.arm_contact_tolerance = arm_contact_tolerance
         if dtype not in (torch.float32, torch.float64):
             raise DrapeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         path = Path(checkpoint).expanduser() if checkpoint is not None else default_checkpoint()
@@ -462,12 +467,12 @@ class Draper:
         return results
 
     @staticmethod
-    def _refuse_penetrating_poses(state, body, labels: list[str]) -> None:
+    def _refuse_penetrating_poses(state, body, labels: list[str], tolerance: int) -> None:
         """A static drape cannot resolve cloth pinched between arm and torso: refuse such poses."""
         from physdrape.body.poses import arm_torso_penetration
 
         counts = arm_torso_penetration(state, body).tolist()
-        bad = [f"{label} ({count} arm vertices inside the body)" for label, count in zip(labels, counts) if count]
+        bad = [f"{label} ({count} arm vertices inside the body)" for label, count in zip(labels, counts) if count > tolerance]
         if bad:
             raise DrapeError(
                 f"pose drives the arms through the torso: {'; '.join(bad)}. PhysDrape drapes static poses with "
@@ -493,7 +498,7 @@ class Draper:
         pose_t = torch.cat([poses[k].pose for k in labels]).to(torch.float64)
         state = body(shape.expand(len(labels), -1), pose_t)
         if self.check_pose:
-            self._refuse_penetrating_poses(state, body, [poses[k].label for k in labels])
+            self._refuse_penetrating_poses(state, body, [poses[k].label for k in labels], self.arm_contact_tolerance)
         t1 = time.perf_counter()
         x_init, garments, mats, body_ids = [], [], [], []
         for template, bp, mat in jobs:
