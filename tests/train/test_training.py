@@ -63,3 +63,15 @@ def test_broken_checkpoint_pointer_is_explained(tmp_path):
     (tmp_path / "latest").write_text("step-00000099\n")
     with pytest.raises(ckpt.CheckpointError, match="delete .*latest"):
         ckpt.latest_checkpoint(tmp_path)
+
+
+def test_ship_exports_model_and_training_record(tmp_path):
+    from physdrape.train.ship import ship
+
+    trainer(tmp_path / "run").run()
+    record = ship(tmp_path / "run", tmp_path / "model", tmp_path / "record", command="physdrape train ...")
+    assert sorted(p.name for p in (tmp_path / "model").iterdir()) == ["config.json", "model.safetensors"]
+    assert sorted(p.name for p in (tmp_path / "record").iterdir()) == ["loss_curve.png", "metrics.jsonl", "record.json"]
+    assert record["step"] == 8 and record["seed"] == 3
+    weights, config = ckpt.read_checkpoint(tmp_path / "model")
+    assert config["exported_from"] == "step-00000008" and "optim.0.exp_avg" not in weights
