@@ -1,0 +1,119 @@
+"""PhysDrape vs. the physics oracle: wall time per garment, in one run on the same instances.
+
+For each test instance (the evaluation protocol's, `physdrape.eval.evaluate`): the model at T = 3
+and T = 15 (median of `--repeats` timed calls after a warm-up), then the oracle from X_init,
+reporting (a) the time at which the oracle's history first reaches a total energy
+(E_strain + E_bend + E_grav + contact penalty) ≤ the model's on that instance and (b) its time to
+convergence (tol 1e-2). Budget-limited oracle runs give lower bounds (marked ≥).
+
+    .venv/bin/python bench/bench_speed.py --checkpoint runs/cpu_default --instances 3 --oracle-budget 120
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+
+import torch
+
+from physdrape.eval.evaluate import (
+    EvalConfig,
+    _test_instances,
+    load_model,
+    run_model,
+    run_oracle,
+    total_energy,
+)
+from physdrape.model import Variant
+
+
+def time_to_energy(history, target: float) -> float:
+    """Wall time [s] at which the oracle's energy first is ≤ target (inf if never)."""
+    for record in history:
+        if record.energy <= target:
+            return record.wall
+    return math.inf
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--checkpoint", required=True)
+    parser.add_argument("--instances", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--oracle-budget", type=float, default=120.0)
+    parser.add_argument("--max-garments", type=int, default=0)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--json", help="also write the per-instance numbers here")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    config = EvalConfig(instances=args.instances, seed=args.seed, oracle_budget_s=args.oracle_budget,
+                        max_garments=args.max_garments, threads=args.threads)
+    model, info = load_model(args.checkpoint, variant=Variant.FULL)
+    print(f"checkpoint {info['path']} (step {info['step']}); {args.instances} instances, seed {args.seed}, "
+          f"oracle budget {args.oracle_budget} s, {args.threads} thread(s), {torch.get_num_threads()} torch threads")
+    instances, _ = _test_instances(config)
+    rows = []
+    for inst in instances:
+        batch = inst.batch
+        row = {"garment": inst.garment, "num_verts": inst.num_verts, "body": inst.body_index}
+        for steps in (3, 15):
+            run_model(model, batch, steps=steps)  # warm-up
+            times, x = [], None
+            for _ in range(args.repeats):
+                x, wall = run_model(model, batch, steps=steps)
+                times.append(wall)
+            row[f"model_t{steps}_s"] = statistics.median(times)
+            row[f"model_t{steps}_energy"] = float(total_energy(x, batch)[0])
+        t0 = time.perf_counter()
+        result = run_oracle(batch, config)
+        row["oracle_wall_s"] = time.perf_counter() - t0
+        row["oracle_converged"] = bool(result.converged)
+        row["oracle_reason"] = result.reason
+        row["oracle_energy"] = float(result.energy_terms["total"].sum())
+        row["oracle_to_converged_s"] = result.wall_time  # a lower bound unless converged
+        for steps in (3, 15):
+            row[f"oracle_to_t{steps}_energy_s"] = time_to_energy(result.history, row[f"model_t{steps}_energy"])
+        rows.append(row)
+        print(json.dumps(row), file=sys.stderr)
+
+    def med(key):
+        return statistics.median(r[key] for r in rows)
+
+    def bound(values_ok, value):
+        return f"{value:.3g}" if values_ok else f"≥{value:.3g}"
+
+    converged = all(r["oracle_converged"] for r in rows)
+    print()
+    print(f"| (medians over {len(rows)} instances) | T=3 | T=15 |")
+    print("|---|---|---|")
+    print(f"| model wall / garment [s] | {med('model_t3_s'):.3g} | {med('model_t15_s'):.3g} |")
+    print(f"| model E_total [J] | {med('model_t3_energy'):.4g} | {med('model_t15_energy'):.4g} |")
+    for steps in (3, 15):
+        reached = [r for r in rows if math.isfinite(r[f"oracle_to_t{steps}_energy_s"])]
+        print(f"| T={steps}: oracle reached the model's energy on | {len(reached)}/{len(rows)} instances | |")
+    to3, to15 = med("oracle_to_t3_energy_s"), med("oracle_to_t15_energy_s")
+    print(f"| oracle time to the model's energy [s] | {to3:.3g} | {to15:.3g} |")
+    conv = med("oracle_to_converged_s")
+    print(f"| oracle time to convergence [s] ({sum(r['oracle_converged'] for r in rows)}/{len(rows)} converged) "
+          f"| {bound(converged, conv)} | {bound(converged, conv)} |")
+    for steps in (3, 15):
+        for r in rows:
+            r[f"ratio_energy_t{steps}"] = r[f"oracle_to_t{steps}_energy_s"] / r[f"model_t{steps}_s"]
+            r[f"ratio_converged_t{steps}"] = r["oracle_to_converged_s"] / r[f"model_t{steps}_s"]
+    print(f"| median ratio: oracle to the model's energy / model | {med('ratio_energy_t3'):.3g} | {med('ratio_energy_t15'):.3g} |")
+    print(f"| median ratio: oracle to convergence / model | {bound(converged, med('ratio_converged_t3'))} "
+          f"| {bound(converged, med('ratio_converged_t15'))} |")
+    print(f"| oracle E_total at its end [J] | {med('oracle_energy'):.4g} | |")
+    if args.json:
+        with open(args.json, "w") as handle:
+            json.dump({"checkpoint": info, "config": vars(args), "instances": rows}, handle, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,81 @@
+"""`physdrape eval`: the evaluation protocol of `physdrape.eval.evaluate` from the command line.
+
+Wire into `physdrape.cli.build_parser` with::
+
+    from physdrape.eval.cli import add_parser as add_eval_parser
+    add_eval_parser(sub)
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+
+
+def _ablation_pair(text: str) -> tuple[str, str]:
+    from physdrape.eval.evaluate import ABLATION_NAMES
+
+    name, sep, path = text.partition("=")
+    if not sep or not path or name not in ABLATION_NAMES:
+        raise argparse.ArgumentTypeError(f"expected NAME=DIR with NAME one of {list(ABLATION_NAMES)}, got {text!r}")
+    return name, path
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    """Run the protocol and write <out>/eval.json and <out>/eval.md."""
+    from physdrape.eval.evaluate import (
+        EvalConfig,
+        evaluate,
+        render_markdown,
+        write_results,
+    )
+
+    ablation = dict(args.ablation or [])
+    config = EvalConfig(
+        instances=args.instances, seed=args.seed, oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget,
+        oracle_tol=args.oracle_tol, split_dir=args.split_dir or "", max_garments=args.max_garments,
+        makehuman_dir=args.makehuman or "", makehuman_max_verts=args.makehuman_max_verts, dtype=args.dtype, threads=args.threads,
+    )
+    command = shlex.join(sys.argv)
+    results = evaluate(args.checkpoint, config, ablation=ablation, command=command,
+                       log=lambda msg: print(msg, file=sys.stderr))
+    json_path, md_path = write_results(results, args.out)
+    print(render_markdown(results))
+    print(f"wrote {json_path} and {md_path}", file=sys.stderr)
+    return 0
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the `eval` subcommand to the `physdrape` parser's subparsers."""
+    p = subparsers.add_parser("eval", help="evaluate a checkpoint: Tables 1–2 vs. the physics oracle")
+    p.add_argument("--checkpoint", required=True, help="checkpoint directory (or a run directory: its latest)")
+    p.add_argument("--out", required=True, help="output directory for eval.json and eval.md")
+    p.add_argument("--instances", type=int, default=10, help="test instances (garment × seeded shape and pose)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the body shapes and poses")
+    p.add_argument("--oracle-budget", type=float, default=60.0, help="oracle wall-time budget per instance [s]")
+    p.add_argument("--oracle-tol", type=float, default=1e-2, help="oracle residual tolerance (|F|/(m g))")
+    p.add_argument("--no-oracle", action="store_true", help="skip the oracle (no ratio columns)")
+    p.add_argument("--makehuman", metavar="DIR", help="also evaluate the CC0 MakeHuman garments (.mhclo) in DIR")
+    p.add_argument("--makehuman-max-verts", type=int, default=6000,
+                   help="skip MakeHuman garments with more vertices (memory of the body queries; 0: no cap)")
+    p.add_argument("--ablation", action="append", type=_ablation_pair, metavar="NAME=DIR",
+                   help="a separately trained checkpoint for Table 2 (NAME: gnn, gnn+solver, gnn+collision, full)")
+    p.add_argument("--split-dir", help="garment split directory (default: the cached seed-0 split)")
+    p.add_argument("--max-garments", type=int, default=0, help="use the first N test garments (0: all)")
+    p.add_argument("--dtype", choices=("float32", "float64"), default="float64", help="physics dtype")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (0: torch's default)")
+    p.set_defaults(func=cmd_eval)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Standalone entry (`python -m physdrape.eval.cli eval ...`) until `physdrape eval` is wired."""
+    parser = argparse.ArgumentParser(prog="physdrape")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
