@@ -139,6 +139,9 @@ def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike) -> P
     try:
         shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps({**config, "exported_from": source.name}, indent=2, sort_keys=True))
+        for path in (tmp / "model.safetensors", tmp / "config.json"):
+            path.chmod(0o644)  # shipped inside the package: readable by everyone
+        tmp.chmod(0o755)
         if out_dir.exists():
             shutil.rmtree(out_dir)
         os.replace(tmp, out_dir)
