@@ -27,7 +27,6 @@ mean to the oracle's mean over the same instances.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
@@ -51,6 +50,7 @@ from physdrape.physics.collision import (
     collision_energy,
 )
 from physdrape.physics.forces import energy_terms
+from physdrape.physics.oracle import silenced
 
 __all__ = [
     "ABLATION_ROWS",
@@ -293,28 +293,13 @@ def run_model(model: PhysDrape, batch: DrapeInput, *, steps: int | None) -> tupl
     return out.x, time.perf_counter() - t0
 
 
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Silence C-level writes to stdout inside the block (CHOLMOD prints "not positive definite"
-    each time the oracle's exact-Hessian attempt falls back to the projected one: expected)."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
 def run_oracle(batch: DrapeInput, config: EvalConfig):
     """`relax` from X_init on one instance (penalty contact), with the configured tol and budget."""
     from physdrape.physics.oracle import relax
 
     garment_of_vert = batch.garments.vert_garment
     body_of_garment = torch.zeros(batch.garments.num_garments, dtype=torch.int64).scatter_(0, garment_of_vert, batch.body_index)
-    with _quiet_stdout():
+    with silenced(1):
         return relax(batch.x_init, batch.cloth, batch.bodies, body_of_garment, contact="penalty", tol=config.oracle_tol,
                      max_iters=config.oracle_max_iters, time_budget_s=config.oracle_budget_s)
 

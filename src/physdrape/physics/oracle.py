@@ -215,16 +215,16 @@ class _Assembler:
 
 
 @contextlib.contextmanager
-def _quiet_stderr():
-    """Silence C-level writes to stderr (file descriptor 2) inside the block."""
-    sys.stderr.flush()
-    saved = os.dup(2)
+def silenced(fd: int):
+    """Silence C-level writes to file descriptor `fd` (1 = stdout, 2 = stderr) inside the block."""
+    (sys.stdout if fd == 1 else sys.stderr).flush()
+    saved = os.dup(fd)
     try:
         with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 2)
+            os.dup2(devnull.fileno(), fd)
             yield
     finally:
-        os.dup2(saved, 2)
+        os.dup2(saved, fd)
         os.close(saved)
 
 
@@ -639,7 +639,7 @@ def relax(
             if not project:  # exact Hessian: one try at the current regularisation
                 lower.data[diag_pos] = base_diag + reg * diag_mean
                 try:
-                    with _quiet_stderr():  # CHOLMOD prints a warning when it finds the matrix indefinite
+                    with silenced(2):  # CHOLMOD prints a warning when it finds the matrix indefinite
                         p = _solve(lower, rhs, solver)
                     reg_used, projected = reg, False
                     t_s += time.perf_counter() - t2

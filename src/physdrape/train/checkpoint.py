@@ -14,13 +14,12 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import torch
 from safetensors.torch import load_file, save_file
 
-from physdrape.atomic import write_text
+from physdrape.atomic import atomic_directory, write_text
 
 LATEST = "latest"
 
@@ -71,20 +70,13 @@ def save_checkpoint(
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     final = run_dir / f"step-{step:08d}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=run_dir))
-    try:
+    with atomic_directory(final) as tmp:
         weights = {k: v.detach().contiguous().clone() for k, v in model.state_dict().items()}
         save_file(weights, tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True))
         if train_tensors is not None:
             save_file(train_tensors, tmp / "train_state.safetensors")
             (tmp / "train_state.json").write_text(json.dumps(train_meta or {}, indent=2, sort_keys=True))
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     write_text(run_dir / LATEST, final.name + "\n")
     old = sorted(p for p in run_dir.glob("step-*") if p.is_dir())[:-keep] if keep > 0 else []
     for path in old:
@@ -133,19 +125,9 @@ def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike) -> P
     if (source / LATEST).is_file():
         source = latest_checkpoint(source)
     weights, config = read_checkpoint(source)  # validates that both files are readable
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
+    with atomic_directory(out_dir) as tmp:
         shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps({**config, "exported_from": source.name}, indent=2, sort_keys=True))
         for path in (tmp / "model.safetensors", tmp / "config.json"):
             path.chmod(0o644)  # shipped inside the package: readable by everyone
-        tmp.chmod(0o755)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out_dir
+    return Path(out_dir)
