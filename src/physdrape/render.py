@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from physdrape.garments.numpy_geometry import vertex_normals
+
 __all__ = [
     "compose_gallery",
     "convergence_figure",
@@ -35,14 +37,6 @@ BODY_RGB = np.array([0.80, 0.74, 0.68])
 GARMENT_RGB = np.array([0.27, 0.47, 0.78])
 PENETRATION_RGB = np.array([0.90, 0.05, 0.05])
 BACKGROUND_RGB = np.array([1.0, 1.0, 1.0])
-
-
-def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
-    vn = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], fn)
-    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
 
 
 def rasterise(screen: np.ndarray, faces: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -138,7 +132,7 @@ def render_view(meshes: Sequence[dict], *, yaw_deg: float = 0.0, size: int = 512
         colors.append(np.broadcast_to(np.asarray(m["colors"], np.float64), v.shape))
         fc = m.get("face_colors")
         fcolors.append(np.full((int(keep.sum()), 3), np.nan) if fc is None else np.asarray(fc, np.float64)[keep])
-        normals.append(_vertex_normals(v, f))
+        normals.append(vertex_normals(v, f))
         offset += len(v)
     v, f = np.concatenate(verts), np.concatenate(faces)
     col, fcol, nrm = np.concatenate(colors), np.concatenate(fcolors), np.concatenate(normals)
