@@ -13,6 +13,15 @@ Example (the README snippet; `tests/api/test_api.py` runs it with a test model):
 
 Conventions: SI units, y-up metres; garment templates sit on the canonical Anny body (all
 phenotypes 0.5, rest A-pose). One model pass plus `steps` explicit solver steps per batch.
+
+SMPL / SMPL-X (model files never shipped): ``Draper(smpl_model="SMPL_NEUTRAL.npz")`` (or
+``body=SMPLBody(...)``) drapes on that body instead: shape = β, pose = θ or AMASS frames
+(``Motion("seq.npz", frames=(0, 10))``); garments must then be files authored on SMPL's canonical
+body (β = 0, rest T-pose), since the bundled and generated garments are made for Anny.
+
+Sequences: a multi-frame `Motion` is draped frame by frame with a warm start (each frame starts
+from the previous frame's drape carried along by the body's motion, see `Motion`);
+``Motion(..., warm_start=False)`` drapes every frame independently, as one batch.
 """
 
 from __future__ import annotations
@@ -33,7 +42,8 @@ from torch import Tensor
 from physdrape.physics.material import Material
 from physdrape.physics.presets import MATERIAL_PRESETS, material_preset
 
-__all__ = ["GARMENT_CATEGORIES", "DrapeError", "DrapeResult", "Draper", "Motion", "default_checkpoint", "drape"]
+__all__ = ["GARMENT_CATEGORIES", "DrapeError", "DrapeResult", "Draper", "Motion", "default_checkpoint", "drape",
+           "load_smpl_body"]
 
 #: Categories of the procedural generator, usable as "category:seed" garment specs.
 GARMENT_CATEGORIES = ("tshirt", "longsleeve", "tanktop", "croptop")
@@ -54,13 +64,28 @@ def default_checkpoint() -> Path:
 
 @dataclass(frozen=True)
 class Motion:
-    """Frames of a BVH motion (CMU skeleton) used as poses, retargeted onto Anny's ``cmu_mb`` rig.
+    """Frames of a motion used as poses.
 
-    path: the .bvh file; frames: one frame index, or a (start, stop) half-open range.
+    path: a ``.bvh`` file (CMU skeleton), retargeted onto Anny's ``cmu_mb`` rig; or an AMASS-style
+        ``.npz`` (``poses`` (N, 3J) axis-angles [rad], optional ``betas``; read by
+        `physdrape.body.poses.load_amass_npz`, z-up turned y-up, ``trans`` ignored) on an SMPL
+        Draper (``Draper(smpl_model=...)``); its ``betas`` are the shape unless ``drape(shape=...)``
+        gives one.
+    frames: one frame index, or a (start, stop) half-open range.
+    warm_start: for several frames, drape them in order, each starting from the previous frame's
+        drape carried along by the body: per garment vertex i, with T_i(t) = sum_j W_ij T_j(t) the
+        skinning transform of the body blended by the garment's transfer weights W (as in
+        `SkinningTransfer.apply`), X_init(t) = T_i(t) T_i(t-1)^-1 X*(t-1) (then edge stretch
+        limited like the skinned X_init). Frame `start` is draped cold (from its own skinned
+        X_init), so it equals the cold drape. Frames are then processed one by one, not as one
+        batch. PhysDrape itself stays static (no velocities): the warm start only changes the
+        initial guess, which keeps folds consistent from frame to frame. False: every frame from
+        its own skinned X_init, all in one batch.
     """
 
     path: str | Path
     frames: int | tuple[int, int] = 0
+    warm_start: bool = True
 
 
 @dataclass
@@ -82,6 +107,8 @@ class DrapeResult:
         inside_faces: faces whose centroid is inside the body, (F,) bool (the B2G faces).
         convergence: per solver step t = 0..T: {"energy": E_strain+E_bend+E_grav [J],
             "force": Σ_i ‖F_int,i + f̂_i‖ [N]}; empty unless drape(keep_trace=True).
+        init: how X_init was made: "skinning" (the garment skinned onto this body) or "warm"
+            (the previous frame's drape carried along by the body's motion, see `Motion`).
     """
 
     name: str
@@ -97,6 +124,7 @@ class DrapeResult:
     vertex_residual: np.ndarray
     inside_faces: np.ndarray
     convergence: dict[str, list[float]] = field(default_factory=dict)
+    init: str = "skinning"
 
     def to_trimesh(self, *, with_body: bool = False):
         """The garment as a `trimesh.Trimesh` (process=False keeps the topology); with_body: a Scene."""
@@ -133,6 +161,7 @@ class DrapeResult:
             "close_percent": self.metrics["close_percent"],
             "residual_force_N": self.metrics["residual_force"],
             "residual_relative": self.metrics["residual_relative"],
+            "init": self.init,
             "timings_s": self.timings,
         }
 
@@ -159,6 +188,8 @@ class _BodyPose:
     rig: str
     pose: Tensor  # (1, J, 3) float64
     label: str
+    shape: Tensor | None = None  # (1, S) float64: this pose's own body shape (AMASS betas), else the call's
+    seq: tuple[int, int] | None = None  # (sequence id, frame): frames of a warm-started Motion
 
 
 class Draper:
@@ -168,7 +199,15 @@ class Draper:
         checkpoint: a checkpoint directory (model.safetensors + config.json) or a run directory
             (its ``latest``); None = the bundled model (`default_checkpoint`).
         steps: explicit solver steps T at inference (paper: 15).
-        body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use).
+        body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
+            `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
+        smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
+            a restricted unpickler) or of a folder holding ``SMPL_{GENDER}.npz|pkl``: shorthand for
+            ``body=SMPLBody(smpl_model, gender=smpl_gender)``. The model files are not shipped
+            (https://smpl.is.tue.mpg.de). With an SMPL body: shape = β (`betas`), pose = θ
+            (axis-angles per SMPL joint) or AMASS frames (`Motion` of an .npz), and garments must be
+            .obj/.ply files authored on SMPL's canonical body (β = 0, zero pose).
+        smpl_gender: picks the file when `smpl_model` is a folder.
         dtype: dtype of garments, bodies and the solver (the network keeps its own).
         check_pose: refuse (DrapeError) a pose whose arms pass through the torso
             (`body.poses.arm_torso_penetration`), instead of draping it silently.
@@ -179,7 +218,8 @@ class Draper:
 
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
                  dtype: torch.dtype = torch.float32, check_pose: bool = True,
-                 arm_contact_tolerance: int = 20) -> None:
+                 arm_contact_tolerance: int = 20, smpl_model: str | Path | None = None,
+                 smpl_gender: str = "neutral") -> None:
         from physdrape.config_io import ConfigError, from_mapping
         from physdrape.model import PhysDrape
         from physdrape.model.config import ModelConfig
@@ -215,15 +255,27 @@ class Draper:
         self.steps = steps
         self.dtype = dtype
         self._bodies: dict[str, Any] = {}
+        if body is not None and smpl_model is not None:
+            raise DrapeError("give either body=... or smpl_model=..., not both")
+        if smpl_model is not None:
+            body = load_smpl_body(smpl_model, gender=smpl_gender)
         if body is not None:
+            if not hasattr(body, "rig"):
+                raise DrapeError(f"body must be an AnnyBody or an SMPLBody, got {type(body).__name__}")
             self._bodies[body.rig] = body
+        #: the SMPL body when this Draper drapes on SMPL (then Anny is never loaded), else None
+        self.smpl = self._bodies.get("smpl")
         self._transfers: dict[tuple[str, str], Any] = {}
         self._garments: dict[str, Any] = {}
         self._templates: dict[str, _Template] = {}
 
     # ------------------------------------------------------------------ inputs
     def body(self, rig: str = "anny"):
-        """The Anny body of `rig` ("anny" for presets/random poses, "cmu_mb" for BVH), cached."""
+        """The Anny body of `rig` ("anny" for presets/random poses, "cmu_mb" for BVH), cached;
+        "smpl": the SMPL body given to the Draper."""
+        if rig == "smpl" and rig not in self._bodies:
+            raise DrapeError("this Draper has no SMPL body: create it with Draper(smpl_model=PATH) "
+                             "(CLI: --smpl-model FILE)")
         if rig not in self._bodies:
             from physdrape.body.anny_body import get_anny_body
 
@@ -237,6 +289,12 @@ class Draper:
 
         if isinstance(spec, (str, Path)):
             text = str(spec)
+            if self.smpl is not None and (text == "default" or _GENERATED.match(text)
+                                          or text.lower().endswith(".mhclo")):
+                raise DrapeError(
+                    f"garment {text!r} is made for the Anny body and does not fit SMPL: with an SMPL body, give a "
+                    "garment file (.obj/.ply, metres, y-up) authored on SMPL's canonical body (β = 0, zero pose "
+                    "= T-pose); the bundled default, the generated CATEGORY:SEED garments and .mhclo are Anny-only")
             if text in self._templates:
                 return self._templates[text]
             try:
@@ -297,7 +355,10 @@ class Draper:
         return _Template(name=name, verts=v, faces=f, key=_digest(v, f))
 
     def shape(self, spec=None) -> Tensor:
-        """Phenotypes (1, 6) float64 from None (canonical), a {name: value} dict or an array of 6."""
+        """Phenotypes (1, 6) float64 from None (canonical), a {name: value} dict or an array of 6;
+        on an SMPL Draper: β (see `betas`)."""
+        if self.smpl is not None:
+            return self.betas(spec)
         from physdrape.body.anny_body import PHENOTYPE_NAMES
 
         body = self.body("anny")
@@ -318,11 +379,71 @@ class Draper:
         except (ValueError, TypeError) as exc:
             raise DrapeError(f"bad shape: {exc}") from exc
 
+    def betas(self, spec=None) -> Tensor:
+        """SMPL shape β (1, num_betas) float64 from None (β = 0, the canonical body) or up to
+        num_betas values (fewer are padded with zeros)."""
+        body = self.body("smpl")
+        nb = body.num_betas
+        if spec is None:
+            return torch.zeros(1, nb, dtype=torch.float64)
+        if isinstance(spec, dict):
+            raise DrapeError("an SMPL body is shaped by β, not by Anny phenotypes: give shape=[b1, b2, ...] "
+                             f"(up to {nb} values; CLI --betas b1,b2,...)")
+        try:
+            arr = np.asarray(spec.detach().cpu() if isinstance(spec, Tensor) else spec, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise DrapeError(f"bad SMPL shape β: {exc}; give up to {nb} numbers") from None
+        if arr.size == 0 or arr.size > nb:
+            raise DrapeError(f"SMPL shape β has {arr.size} values, the model {nb}: give 1..{nb} values "
+                             "(missing ones are 0)")
+        if not np.isfinite(arr).all():
+            raise DrapeError("SMPL shape β contains NaN/inf")
+        if np.abs(arr).max() > 10:
+            raise DrapeError(f"SMPL shape β = {arr.tolist()} has |β| > 10: β are standard deviations of the "
+                             "shape space (typically within ±3)")
+        out = torch.zeros(1, nb, dtype=torch.float64)
+        out[0, :arr.size] = torch.from_numpy(arr)
+        return out
+
+    def _smpl_poses(self, spec) -> list[_BodyPose]:
+        body = self.body("smpl")
+        J = body.num_joints
+        if spec is None or (isinstance(spec, str) and spec in ("rest", "t-pose")):
+            return [_BodyPose("smpl", body.rest_pose(1, dtype=torch.float64), "rest")]
+        if isinstance(spec, Motion):
+            return self._motion_poses(spec)
+        if isinstance(spec, str):
+            raise DrapeError(f"pose {spec!r}: the named presets and random:SEED are defined for Anny; on an SMPL "
+                             f"body give θ, axis-angles [rad] of shape ({J}, 3) or ({3 * J},) (or N of them), "
+                             "'rest', or AMASS frames Motion('seq.npz', frames=...)")
+        try:
+            arr = torch.as_tensor(np.asarray(spec.detach().cpu() if isinstance(spec, Tensor) else spec,
+                                             dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise DrapeError(f"bad SMPL pose θ: {exc}") from None
+        if arr.dim() == 1 and arr.numel() == 3 * J:
+            arr = arr.reshape(1, J, 3)
+        elif arr.dim() == 2 and arr.shape == (J, 3):
+            arr = arr[None]
+        elif arr.dim() == 2 and arr.shape[1] == 3 * J:
+            arr = arr.reshape(-1, J, 3)
+        if arr.dim() != 3 or arr.shape[1:] != (J, 3) or arr.shape[0] == 0:
+            raise DrapeError(f"SMPL pose θ must be axis-angles [rad] of shape ({J}, 3) or ({3 * J},) for this "
+                             f"{J}-joint model (or (N, {J}, 3) / (N, {3 * J})), got {tuple(arr.shape)}")
+        if not torch.isfinite(arr).all():
+            raise DrapeError("SMPL pose θ contains NaN/inf")
+        return [_BodyPose("smpl", arr[i:i + 1], f"theta[{i}]") for i in range(arr.shape[0])]
+
     def poses(self, spec=None) -> list[_BodyPose]:
         """Poses from None (the default preset), a preset name, "random:SEED", an array (J, 3) or
-        (N, J, 3) axis-angle [rad] on the "anny" rig, or a `Motion` (BVH frames)."""
+        (N, J, 3) axis-angle [rad] on the "anny" rig, or a `Motion` (BVH frames).
+
+        On an SMPL Draper: None / "rest" (zero θ, the T-pose), θ as (J, 3), (3J,), (N, J, 3) or
+        (N, 3J) axis-angles [rad], or a `Motion` of an AMASS .npz."""
         from physdrape.body.poses import PRESETS, preset_pose, sample_poses
 
+        if self.smpl is not None:
+            return self._smpl_poses(spec)
         if spec is None:
             spec = DEFAULT_POSE
         if isinstance(spec, Motion):
@@ -346,27 +467,78 @@ class Draper:
             raise DrapeError("pose array contains NaN/inf")
         return [_BodyPose("anny", arr[i:i + 1], f"pose[{i}]") for i in range(arr.shape[0])]
 
+    @staticmethod
+    def _frame_range(motion: Motion, n: int, name: str) -> tuple[int, int]:
+        frames = motion.frames
+        ok = (isinstance(frames, (int, np.integer)) and not isinstance(frames, bool)) or (
+            isinstance(frames, (tuple, list)) and len(frames) == 2 and all(isinstance(f, (int, np.integer))
+                                                                           for f in frames))
+        if not ok:
+            raise DrapeError(f"Motion frames must be a frame index or a (start, stop) pair, got {frames!r}")
+        start, stop = (int(frames), int(frames) + 1) if not isinstance(frames, (tuple, list)) else map(int, frames)
+        if not 0 <= start < stop <= n:
+            raise DrapeError(f"frames {motion.frames} out of range: {name} has {n} frames (0..{n - 1}); "
+                             "give a frame index or START:STOP with 0 <= START < STOP <= number of frames")
+        return start, stop
+
+    def _sequence(self, motion: Motion, poses: list[_BodyPose]) -> list[_BodyPose]:
+        """Tag the frames of a warm-started multi-frame motion (`drape` chains them)."""
+        if not motion.warm_start or len(poses) < 2:
+            return poses
+        self._seq_counter = getattr(self, "_seq_counter", 0) + 1
+        return [_BodyPose(bp.rig, bp.pose, bp.label, bp.shape, (self._seq_counter, k)) for k, bp in enumerate(poses)]
+
+    def _amass_poses(self, motion: Motion, path: Path) -> list[_BodyPose]:
+        from physdrape.body.poses import load_amass_npz
+
+        body = self.body("smpl")
+        try:
+            seq = load_amass_npz(path, num_joints=body.num_joints, num_betas=body.num_betas, dtype=torch.float64)
+        except (ValueError, OSError, EOFError) as exc:  # np.load raises several types on bad files
+            raise DrapeError(f"cannot read AMASS file {path}: {exc}") from None
+        pose, betas = seq["pose"], seq["betas"]
+        n = pose.shape[0]
+        if n == 0:
+            raise DrapeError(f"AMASS file {path.name} has no frames (poses is empty)")
+        start, stop = self._frame_range(motion, n, path.name)
+        pose = pose[start:stop]
+        if not torch.isfinite(pose).all():
+            bad = int((~torch.isfinite(pose)).flatten(1).any(1).nonzero()[0, 0]) + start
+            raise DrapeError(f"AMASS file {path.name}: poses of frame {bad} contain NaN/inf; choose other frames")
+        if not torch.isfinite(betas).all():
+            raise DrapeError(f"AMASS file {path.name}: betas contain NaN/inf; fix the file or pass shape=β")
+        shape = betas.reshape(1, -1)
+        return [_BodyPose("smpl", pose[i:i + 1], f"{path.name}#{start + i}", shape) for i in range(stop - start)]
+
     def _motion_poses(self, motion: Motion) -> list[_BodyPose]:
         from physdrape.body.bvh import load_bvh, retarget_bvh
 
         path = Path(motion.path).expanduser()
+        suffix = path.suffix.lower()
+        if self.smpl is not None:
+            if suffix != ".npz":
+                raise DrapeError(f"motion {path.name}: an SMPL body takes AMASS .npz frames (poses, betas); BVH "
+                                 "files are retargeted onto Anny only (use a Draper without smpl_model)")
+            if not path.is_file():
+                raise DrapeError(f"AMASS file not found: {path}")
+            return self._sequence(motion, self._amass_poses(motion, path))
+        if suffix == ".npz":
+            raise DrapeError(f"motion {path.name}: AMASS .npz frames are SMPL poses; create the Draper with "
+                             "smpl_model=PATH (CLI: --smpl-model FILE --amass FILE)")
         if not path.is_file():
             raise DrapeError(f"BVH file not found: {path}")
         try:
             bvh = load_bvh(path)
         except Exception as exc:  # the parser raises several types on malformed files
             raise DrapeError(f"cannot read BVH {path}: {exc}") from exc
-        n = bvh.num_frames
-        start, stop = (motion.frames, motion.frames + 1) if isinstance(motion.frames, int) else motion.frames
-        if not 0 <= start < stop <= n:
-            raise DrapeError(f"frames {motion.frames} out of range: {path.name} has {n} frames (0..{n - 1})")
+        start, stop = self._frame_range(motion, bvh.num_frames, path.name)
         body = self.body("cmu_mb")
         try:
             ret = retarget_bvh(bvh, body, frames=slice(start, stop))
         except ValueError as exc:
             raise DrapeError(f"cannot retarget {path.name} onto Anny: {exc}") from exc
-        return [_BodyPose("cmu_mb", ret.pose[i:i + 1].to(torch.float64), f"{path.name}#{start + i}")
-                for i in range(ret.pose.shape[0])]
+        return self._sequence(motion, [_BodyPose("cmu_mb", ret.pose[i:i + 1].to(torch.float64),
+                                                 f"{path.name}#{start + i}") for i in range(ret.pose.shape[0])])
 
     @staticmethod
     def material(spec=None) -> Material:
@@ -407,13 +579,17 @@ class Draper:
     def drape(self, garments, *, shape=None, pose=None, material=None, refine: bool = False,
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
               refine_iters: int = 30, refine_time_s: float = 60.0) -> list[DrapeResult]:
-        """Drape garments onto a shaped, posed Anny body.
+        """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
             garments: one garment spec or a list (see `garment`).
             shape: phenotypes: None (canonical, all 0.5), a dict ({"weight": 0.8}; missing at 0.5),
-                or 6 values in [0, 1] in the order `PHENOTYPE_NAMES`.
+                or 6 values in [0, 1] in the order `PHENOTYPE_NAMES`. SMPL: β, up to num_betas
+                values (padded with zeros); None = β = 0, or the betas of AMASS frames.
             pose: one pose spec (see `poses`) or a list; a spec may expand to several frames.
+                A multi-frame `Motion` with warm_start (the default) is draped frame by frame,
+                each frame from the previous frame's drape (see `Motion`); its first frame, and
+                every other job, from the skinned X_init in batches.
             material: a preset name or `Material`, or a list (one per job).
             steps: solver steps T for this call (default: the Draper's `steps`).
             refine: polish each drape with the physics oracle (`physics.relax`, projected Newton,
@@ -438,6 +614,9 @@ class Draper:
         steps = self.steps if steps is None else steps
         templates = [self.garment(g) for g in g_specs]
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
+        if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
+            body_poses = [bp if bp.shape is None else _BodyPose(bp.rig, bp.pose, bp.label, None, bp.seq)
+                          for bp in body_poses]
         materials = [self.material(m) for m in m_specs]
         shape_t = self.shape(shape)
         lengths = {len(templates), len(body_poses), len(materials)} - {1}
@@ -447,24 +626,75 @@ class Draper:
         n = max(len(templates), len(body_poses), len(materials))
         jobs = [(templates[i % len(templates)], body_poses[i % len(body_poses)], materials[i % len(materials)])
                 for i in range(n)]
-        results: list[DrapeResult] = []
-        chunks = [jobs[i:i + batch_size] for i in range(0, n, batch_size)]
+        # Warm start: a job continues the previous one when both are consecutive frames of one
+        # warm-started Motion on the same garment; such jobs run one by one after the cold ones.
+        prev: list[int | None] = [None] * n
+        for i in range(1, n):
+            a, b = jobs[i - 1][1].seq, jobs[i][1].seq
+            if a is not None and b is not None and a[0] == b[0] and b[1] == a[1] + 1 \
+                    and jobs[i - 1][0].key == jobs[i][0].key:
+                prev[i] = i - 1
+        out: dict[int, DrapeResult] = {}
+        affines: dict[int, Tensor] = {}
         bar = None
         if progress:
             from tqdm import tqdm
 
             bar = tqdm(total=n, unit="garment", desc="draping")
-        for chunk in chunks:
+        kw = dict(steps=steps, refine=refine, keep_trace=keep_trace, refine_iters=refine_iters,
+                  refine_time_s=refine_time_s)
+        cold = [i for i in range(n) if prev[i] is None]
+        for c in range(0, len(cold), batch_size):
+            chunk = cold[c:c + batch_size]
             # one rig per model call (bodies in a BodySurface share a topology and a rig)
-            for rig in dict.fromkeys(job[1].rig for job in chunk):
-                part = [job for job in chunk if job[1].rig == rig]
-                results.extend(self._drape_batch(part, shape_t, steps=steps, refine=refine, keep_trace=keep_trace,
-                                                 refine_iters=refine_iters, refine_time_s=refine_time_s))
+            for rig in dict.fromkeys(jobs[i][1].rig for i in chunk):
+                part = [i for i in chunk if jobs[i][1].rig == rig]
+                res, aff = self._drape_batch([jobs[i] for i in part], shape_t, **kw)
+                out.update(zip(part, res))
+                affines.update((i, a) for i, a in zip(part, aff) if a is not None)
                 if bar is not None:
                     bar.update(len(part))
+        for i in range(n):
+            p = prev[i]
+            if p is None:
+                continue
+            warm = (torch.from_numpy(out[p].verts).to(torch.float64), affines.pop(p))
+            [res], [aff] = self._drape_batch([jobs[i]], shape_t, warm=[warm], **kw)
+            out[i], affines[i] = res, aff
+            if bar is not None:
+                bar.update(1)
         if bar is not None:
             bar.close()
-        return results
+        return [out[i] for i in range(n)]
+
+    def _blended_affine(self, template: _Template, rig: str, state) -> Tensor:
+        """T_i = sum_j W_ij T_j: the body's skinning transforms (state (1, Vb, 4, 4)) blended per
+        garment vertex by the transfer weights W, top rows, shape (V, 3, 4) float64."""
+        import warnings
+
+        transfer = self.transfer(template, rig)
+        transforms = state.vertex_transforms[0, :, :3, :].to(torch.float64)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+            weights = transfer.weights.to(torch.float64)
+            blended = weights @ transforms.reshape(transforms.shape[0], 12)
+        return blended.reshape(-1, 3, 4)
+
+    def _warm_init(self, template: _Template, rig: str, x_prev: Tensor, a_prev: Tensor, a_now: Tensor) -> Tensor:
+        """X_init(t) = T(t) T(t-1)^-1 X*(t-1) per garment vertex, then edge-stretch limited like
+        the skinned X_init (float64, (V, 3))."""
+        x_rest = torch.linalg.solve(a_prev[..., :3], (x_prev - a_prev[..., 3]).unsqueeze(-1))
+        x = (a_now[..., :3] @ x_rest).squeeze(-1) + a_now[..., 3]
+        transfer = self.transfer(template, rig)
+        max_stretch = getattr(transfer, "max_stretch", None)
+        if max_stretch is not None:
+            from physdrape.geometry.strain_limit import limit_edge_stretch
+
+            t = torch.from_numpy(template.verts)
+            edges = transfer.edges
+            rest_lengths = (t[edges[:, 1]] - t[edges[:, 0]]).norm(dim=-1)
+            x = limit_edge_stretch(x, edges, rest_lengths, max_stretch=max_stretch)
+        return x
 
     @staticmethod
     def _refuse_penetrating_poses(state, body, labels: list[str], tolerance: int) -> None:
@@ -481,7 +711,10 @@ class Draper:
 
     @torch.no_grad()
     def _drape_batch(self, jobs, shape: Tensor, *, steps: int, refine: bool, keep_trace: bool, refine_iters: int,
-                     refine_time_s: float) -> list[DrapeResult]:
+                     refine_time_s: float, warm: list | None = None) -> tuple[list[DrapeResult], list[Tensor | None]]:
+        """Drape one batch. warm: per job None (X_init by skinning) or (X*(t-1) (V, 3), T(t-1)
+        (V, 3, 4)) for a warm start. Returns the results and, for jobs of a warm-started motion,
+        the blended transforms T(t) (else None) for the next frame."""
         from physdrape.body.model import BodyState
         from physdrape.eval.metrics import drape_metrics
         from physdrape.geometry.garment import GarmentBatch
@@ -496,17 +729,28 @@ class Draper:
         labels = list(dict.fromkeys(id(job[1]) for job in jobs))
         poses = {id(job[1]): job[1] for job in jobs}
         pose_t = torch.cat([poses[k].pose for k in labels]).to(torch.float64)
-        state = body(shape.expand(len(labels), -1), pose_t)
-        if self.check_pose:
+        shapes = torch.cat([shape if poses[k].shape is None else poses[k].shape for k in labels]).to(torch.float64)
+        state = body(shapes, pose_t)
+        from physdrape.body.poses import _ARM_BONES
+
+        if self.check_pose and getattr(body, "rig", None) in _ARM_BONES:
             self._refuse_penetrating_poses(state, body, [poses[k].label for k in labels], self.arm_contact_tolerance)
         t1 = time.perf_counter()
-        x_init, garments, mats, body_ids = [], [], [], []
-        for template, bp, mat in jobs:
+        x_init, garments, mats, body_ids, affines = [], [], [], [], []
+        for k, (template, bp, mat) in enumerate(jobs):
             b = labels.index(id(bp))
             single = BodyState(verts=state.verts[b:b + 1], faces=state.faces, normals=torch.empty(0),
                                rest_verts=state.rest_verts[b:b + 1],
                                vertex_transforms=state.vertex_transforms[b:b + 1])
-            x_init.append(self.transfer(template, rig).apply(single)[0].to(self.dtype))
+            a_now = self._blended_affine(template, rig, single) if bp.seq is not None else None
+            affines.append(a_now)
+            if warm is not None and warm[k] is not None:
+                x_prev, a_prev = warm[k]
+                if a_now is None:
+                    a_now = self._blended_affine(template, rig, single)
+                x_init.append(self._warm_init(template, rig, x_prev, a_prev, a_now).to(self.dtype))
+            else:
+                x_init.append(self.transfer(template, rig).apply(single)[0].to(self.dtype))
             garments.append(self._cloth_garment(template))
             mats.append(mat)
             body_ids.append(b)
@@ -568,8 +812,30 @@ class Draper:
                 vertex_residual=res_split[k],
                 inside_faces=face_split[k].astype(bool),
                 convergence=convergence[k],
+                init="warm" if warm is not None and warm[k] is not None else "skinning",
             ))
-        return results
+        return results, affines
+
+
+def load_smpl_body(path: str | Path, *, gender: str = "neutral", num_betas: int = 10):
+    """An `SMPLBody` from a user's model file (.npz / .pkl) or folder; DrapeError naming the fix."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise DrapeError(
+            f"SMPL model file not found: {p}. SMPL/SMPL-X models are not shipped with PhysDrape: download them "
+            "from https://smpl.is.tue.mpg.de (or smpl-x.is.tue.mpg.de) and pass the .npz/.pkl file (or the "
+            "folder holding SMPL_NEUTRAL.npz)")
+    if p.is_file() and p.suffix.lower() not in (".npz", ".pkl"):
+        raise DrapeError(f"SMPL model {p.name}: unknown file type {p.suffix!r}; give the model's .npz (or "
+                         "legacy .pkl)")
+    from physdrape.body.smpl_body import SMPLBody
+
+    try:
+        return SMPLBody(p, gender=gender, num_betas=num_betas)
+    except ImportError as exc:
+        raise DrapeError(str(exc)) from None
+    except Exception as exc:  # noqa: BLE001 - smplx / numpy / pickle raise many types on bad files
+        raise DrapeError(f"cannot load the SMPL model {p}: {exc}") from None
 
 
 _DEFAULT_DRAPER: Draper | None = None

@@ -125,6 +125,8 @@ def preset_pose(body, name: str, *, dtype: torch.dtype = torch.float32) -> Tenso
 _ARM_BONES = {
     "anny": (("upperarm01",), ("upperarm02", "lowerarm", "wrist", "finger", "metacarpal")),
     "cmu_mb": (("LeftArm", "RightArm"), ("ForeArm", "Hand", "Thumb", "FingerBase", "HandFinger")),
+    # SMPL family (`SMPLBody`): "left_shoulder" drives the upper arm, "left_elbow" the forearm
+    "smpl": (("left_shoulder", "right_shoulder"), ("elbow", "wrist", "hand")),
 }
 
 
@@ -290,9 +292,13 @@ def load_amass_npz(
 ) -> dict[str, Tensor | str | float]:
     """Read an AMASS sequence (`poses` (N, 156) SMPL+H axis-angles, `betas`, `trans`).
 
+    Only `poses` is required: a missing `trans` reads as zeros, missing `betas` as β = 0.
+
     Args:
         num_joints: joints of the target model: 24 (SMPL; AMASS's 22 body joints plus the two
-            hand joints left at zero), 52 (SMPL+H) or 22.
+            hand joints left at zero), 52 (SMPL+H), 55 (SMPL-X) or 22. When the file has exactly
+            `num_joints` joints all are copied; otherwise only the 22 body joints (the hand /
+            face joints of SMPL, SMPL+H and SMPL-X differ) and the rest stay at zero.
         z_up: AMASS is z-up; rotate the root orientation and translation by -90° about x into
             the y-up frame (the pelvis offset from the origin is neglected, a few cm of shift).
     Returns:
@@ -302,11 +308,12 @@ def load_amass_npz(
     if not os.path.isfile(path):
         raise FileNotFoundError(f"AMASS file not found: {path}")
     with np.load(path, allow_pickle=False) as z:
-        for k in ("poses", "trans"):
-            if k not in z.files:
-                raise ValueError(f"{path} is not an AMASS sequence: missing {k!r} (has {z.files})")
+        if "poses" not in z.files:
+            raise ValueError(f"{path} is not an AMASS sequence: missing 'poses' (has {z.files}); an AMASS "
+                             "frame file holds poses (N, 3J) axis-angles [rad], optionally betas and trans")
         poses = torch.as_tensor(z["poses"], dtype=torch.float64)
-        trans = torch.as_tensor(z["trans"], dtype=torch.float64)
+        trans = (torch.as_tensor(z["trans"], dtype=torch.float64) if "trans" in z.files
+                 else torch.zeros(max(poses.shape[0], 0) if poses.dim() else 0, 3, dtype=torch.float64))
         betas = torch.as_tensor(z["betas"], dtype=torch.float64) if "betas" in z.files else torch.zeros(num_betas)
         gender = str(z["gender"]) if "gender" in z.files else "neutral"
         fps = float(z["mocap_framerate"]) if "mocap_framerate" in z.files else float("nan")
@@ -315,7 +322,7 @@ def load_amass_npz(
     aa = poses.reshape(poses.shape[0], -1, 3)
     n_src = aa.shape[1]
     pose = torch.zeros(aa.shape[0], num_joints, 3, dtype=torch.float64)
-    k = min(num_joints if num_joints != 24 else 22, n_src)
+    k = n_src if n_src == num_joints else min(22, num_joints, n_src)
     pose[:, :k] = aa[:, :k]
     if z_up:
         Rx = axis_angle_to_matrix(torch.tensor([-math.pi / 2, 0.0, 0.0], dtype=torch.float64))

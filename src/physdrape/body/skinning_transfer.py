@@ -38,6 +38,8 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from physdrape.geometry.proximity import closest_point_on_triangle
+from physdrape.geometry.strain_limit import limit_edge_stretch
+from physdrape.geometry.topology import undirected_edges
 
 __all__ = ["SkinningTransfer"]
 
@@ -85,11 +87,16 @@ class SkinningTransfer:
         weights: transfer matrix W, sparse CSR, shape (V, Vb); entries > 0, rows sum to 1.
         canonical_verts: canonical body the template was authored on [m], shape (Vb, 3).
         template_verts: garment template [m], shape (V, 3).
+        edges: the template's undirected edges, shape (E, 2) int64.
+        max_stretch: bound on edge length / rest length enforced on X_init after skinning (see
+            `physdrape.geometry.strain_limit`); None leaves the skinned positions as they are.
     """
 
     weights: Tensor
     canonical_verts: Tensor
     template_verts: Tensor
+    edges: Tensor
+    max_stretch: float | None = 1.5
 
     @property
     def num_verts(self) -> int:
@@ -114,6 +121,7 @@ class SkinningTransfer:
         smoothing_strength: float = 0.5,
         prune_below: float = 1e-4,
         num_candidates: int | None = None,
+        max_stretch: float | None = 1.5,
     ) -> SkinningTransfer:
         """Fit transfer weights of a garment template on the canonical body.
 
@@ -129,6 +137,8 @@ class SkinningTransfer:
                 renormalised); 0 keeps every influence.
             num_candidates: triangles pre-selected by centroid distance before the exact test
                 (default max(4k, 32)).
+            max_stretch: bound on the edge stretch of X_init (strain limiting after skinning;
+                > 1), or None for plain skinning.
 
         Returns:
             The fitted ``SkinningTransfer`` (tensors in the dtype of ``canonical_verts`` when it is
@@ -139,6 +149,8 @@ class SkinningTransfer:
                              f"(got {k}, {smoothing_iterations}, {prune_below})")
         if not 0.0 < smoothing_strength <= 1.0:
             raise ValueError(f"smoothing_strength must be in (0, 1], got {smoothing_strength}")
+        if max_stretch is not None and not max_stretch > 1.0:
+            raise ValueError(f"max_stretch must be > 1 or None, got {max_stretch}")
         dtype = canonical_verts.dtype if isinstance(canonical_verts, Tensor) and canonical_verts.is_floating_point() \
             else torch.float64
         vb = _as_float_array("canonical_verts", canonical_verts)
@@ -201,7 +213,8 @@ class SkinningTransfer:
                 torch.from_numpy(mat.data).to(dtype), (num_garment, num_body), check_invariants=False,
             )
         return cls(weights=weights, canonical_verts=torch.from_numpy(vb).to(dtype),
-                   template_verts=torch.from_numpy(vg).to(dtype))
+                   template_verts=torch.from_numpy(vg).to(dtype),
+                   edges=torch.from_numpy(undirected_edges(fg)), max_stretch=max_stretch)
 
     def weight_matrix(self) -> Tensor:
         """The transfer weights as a dense matrix, shape (V, Vb) (for inspection and tests)."""
@@ -261,4 +274,9 @@ class SkinningTransfer:
         blended = blended.reshape(self.num_verts, batch, 15).permute(1, 0, 2)  # (B, V, 15)
         x_rest = x_temp + blended[..., :3]
         affine = blended[..., 3:].reshape(batch, self.num_verts, 3, 4)
-        return torch.einsum("bvij,bvj->bvi", affine[..., :3], x_rest) + affine[..., 3]
+        x = torch.einsum("bvij,bvj->bvi", affine[..., :3], x_rest) + affine[..., 3]
+        if self.max_stretch is None:
+            return x
+        # Bounded relative to the template (the garment's rest state in the physics).
+        rest_lengths = (x_temp[..., self.edges[:, 1], :] - x_temp[..., self.edges[:, 0], :]).norm(dim=-1)
+        return limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=self.max_stretch)

@@ -196,7 +196,11 @@ class SMPLBody(BodyModel):
         model_path: the model file (.npz / .pkl) or a folder holding SMPL_{GENDER}.npz|pkl.
         gender: used only to pick the file in a folder.
         num_betas: number of shape coefficients β (default 10).
+
+    ``rig`` is ``"smpl"`` for the whole family (the API keys its bodies and transfers by it).
     """
+
+    rig = "smpl"
 
     def __init__(self, model_path: str | os.PathLike, *, gender: str = "neutral", num_betas: int = 10) -> None:
         smplx = _import_smplx()
@@ -240,11 +244,20 @@ class SMPLBody(BodyModel):
     def joint_names(self) -> tuple[str, ...]:
         if self.num_joints == 24:
             return SMPL_JOINT_NAMES
+        hands = tuple(f"{side}_hand_finger{k}" for side in ("left", "right") for k in range(15))
+        if self.num_joints == 52:  # SMPL+H: 15 finger joints per hand
+            return SMPL_JOINT_NAMES[:22] + hands
+        if self.num_joints == 55:  # SMPL-X: jaw, eyes, then the SMPL+H fingers
+            return SMPL_JOINT_NAMES[:22] + ("jaw", "left_eye", "right_eye") + hands
         return SMPL_JOINT_NAMES[:22] + tuple(f"joint{j}" for j in range(22, self.num_joints))
 
     @property
     def skinning_weights(self) -> Tensor:
         return self._weights
+
+    def vertex_part(self) -> Tensor:
+        """Index of each vertex's dominant joint (largest skinning weight), shape (V,) int64."""
+        return self._weights.argmax(dim=1)
 
     def _tensors(self, dtype, device) -> dict:
         key = (dtype, device)

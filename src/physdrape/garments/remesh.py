@@ -12,6 +12,7 @@ import warnings
 
 import numpy as np
 
+from physdrape.garments.mesh_cleanup import collapse_short_edges, flip_to_delaunay, remove_flat_ears
 from physdrape.geometry.topology import (
     boundary_edges,
     connected_components,
@@ -20,6 +21,9 @@ from physdrape.geometry.topology import (
 )
 
 __all__ = ["remesh", "mean_edge_length"]
+
+#: Edges shorter than this fraction of the target are collapsed after remeshing.
+SHORT_EDGE_RATIO = 0.35
 
 
 def mean_edge_length(verts: np.ndarray, faces: np.ndarray) -> float:
@@ -94,12 +98,28 @@ def _remesh_component(gpytoolbox, v, f, target_edge, iterations):
         deg = np.bincount(be.ravel(), minlength=len(v))
         if (deg > 2).any():  # a vertex where boundary loops touch: the remesher cannot cope
             raise ValueError("boundary loops touch at a vertex")
-    u, g = gpytoolbox.remesh_botsch(
-        np.ascontiguousarray(v),
-        np.ascontiguousarray(f.astype(np.int32)),
-        i=int(iterations),
-        h=float(target_edge),
-        project=True,
-        feature_edges=np.ascontiguousarray(be.astype(np.int32)) if len(be) else None,
-    )
-    return drop_unused_vertices(np.asarray(u, np.float64), np.asarray(g, np.int64))
+    def botsch(v, f, iters):
+        be = boundary_edges(f)
+        u, g = gpytoolbox.remesh_botsch(
+            np.ascontiguousarray(v),
+            np.ascontiguousarray(f.astype(np.int32)),
+            i=int(iters),
+            h=float(target_edge),
+            project=True,
+            feature_edges=np.ascontiguousarray(be.astype(np.int32)) if len(be) else None,
+        )
+        return drop_unused_vertices(np.asarray(u, np.float64), np.asarray(g, np.int64))
+
+    v, f = botsch(v, f, iterations)
+    if not len(be):
+        return v, f
+    # The boundary polylines stay fixed, so their irregular spacing survives as short edges and
+    # slivers along the openings: coarsen them, remesh once more around the new polylines, then
+    # clean what that leaves (see `mesh_cleanup`).
+    v, f = collapse_short_edges(v, f, SHORT_EDGE_RATIO * target_edge)
+    v, f = botsch(v, f, max(iterations // 2, 1))
+    for _ in range(3):
+        v, f = remove_flat_ears(v, f)
+        v, f = collapse_short_edges(v, f, SHORT_EDGE_RATIO * target_edge)
+        f = flip_to_delaunay(v, f)
+    return v, f

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+#: Bumped whenever the generator's output changes; a split of another format is refused.
+SPLIT_FORMAT = "physdrape-garment-split/2"  # 2: remeshing cleans short edges and slivers
+
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
     GarmentTemplate,
@@ -109,7 +112,7 @@ def make_split(
             if progress:
                 print(f"{k + 1}/{len(jobs)} {rows[-1]['file']}", flush=True)
     manifest = dict(
-        format="physdrape-garment-split/1",
+        format=SPLIT_FORMAT,
         seed=int(seed),
         num_train=int(num_train),
         num_test=int(num_test),
@@ -143,6 +146,9 @@ def load_split(
     if subset not in _SUBSETS:
         raise ValueError(f"subset must be one of {sorted(_SUBSETS)}, got {subset!r}")
     manifest = json.loads(mpath.read_text())
+    if manifest.get("format") != SPLIT_FORMAT:
+        raise ValueError(f"{mpath} is a split of format {manifest.get('format')!r}, this version reads "
+                         f"{SPLIT_FORMAT!r}: regenerate it (python -m physdrape.garments.split --out DIR)")
     out = []
     for row in manifest["garments"]:
         if row["subset"] != subset:

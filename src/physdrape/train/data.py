@@ -30,8 +30,11 @@ DENSITY_RANGE = (0.043, 0.7)  # kg/m², uniform
 
 
 def default_split_dir(seed: int = 0) -> Path:
-    """Where the generated garment split is cached: ~/.cache/physdrape/garment_split_seed<seed>."""
-    return Path.home() / ".cache" / "physdrape" / f"garment_split_seed{seed}"
+    """Where the generated garment split is cached: ~/.cache/physdrape/garment_split_seed<seed>_v<format>."""
+    from physdrape.garments.split import SPLIT_FORMAT
+
+    version = SPLIT_FORMAT.rsplit("/", 1)[-1]
+    return Path.home() / ".cache" / "physdrape" / f"garment_split_seed{seed}_v{version}"
 
 
 @dataclass(frozen=True)
