@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     instances, _ = _test_instances(config)
     rows = []
     for inst in instances:
-        batch = inst.batch
+        batch = inst.batch()
         row = {"garment": inst.garment, "num_verts": inst.num_verts, "body": inst.body_index}
         for steps in (3, 15):
             run_model(model, batch, steps=steps)  # warm-up

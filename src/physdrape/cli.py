@@ -29,14 +29,22 @@ examples:
   physdrape drape --category longsleeve --seed 3 --shape gender=0.2,weight=0.8 --pose stand --material denim
   physdrape drape --garment shirt.obj --garment tshirt:7 --out out/ --force --figures
   physdrape drape --bvh walk.bvh --frames 0:8 --out walk/
+  physdrape drape --smpl-model SMPL_NEUTRAL.npz --garment smpl_shirt.obj --betas 1.2,-0.5 --amass seq.npz --frames 0:10
 outputs (in --out): garment.obj/.ply, body.obj/.ply, drape.glb, render.png, report.json
   (several garments or frames: one numbered sub-directory each, one report.json);
   --figures adds residual.png (force heatmap, penetrating faces red), convergence.png
   (energy and force per solver step), materials.png (silk -> leather sweep of the first garment)
   and gallery.png (the four tiled).
-BVH sequences: PhysDrape is a static, one-shot model (no velocities, no history), so a warm start
-from the previous frame is not meaningful; --frames drapes the frames as one batch, each from its
-own kinematic initialisation.
+sequences (--bvh / --amass with --frames A:B): warm-started by default: frame A is draped by the
+  model from its own kinematic initialisation; each later frame starts from the previous frame's
+  drape carried along by the body's motion (per garment vertex: blended skinning transform of
+  frame t times the inverse of frame t-1's) and gets the solver steps and collision handler only
+  (--warm-start model: the full model pass instead, which drifts over frames), one frame after
+  the other. --no-warm-start drapes every frame from its own initialisation, all as one batch.
+SMPL / SMPL-X (--smpl-model; model files are not shipped, https://smpl.is.tue.mpg.de): shape =
+  --betas (up to 10 values, the rest 0), pose = --theta FILE.npy (axis-angles [rad], (24, 3) or
+  (72,) for SMPL) or --amass FILE.npz (its betas are the shape unless --betas is given); the
+  garment must be an .obj/.ply authored on SMPL's canonical body (beta = 0, zero pose).
 """
 
 
@@ -144,10 +152,87 @@ def _garment_specs(args) -> list[str]:
     return specs or ["default"]
 
 
-def _pose_spec(args):
+def _parse_betas(text: str | None) -> list[float] | None:
+    import math
+
+    if text is None:
+        return None
+    values = []
+    for item in (p.strip() for p in text.split(",")):
+        try:
+            v = float(item)
+        except ValueError:
+            raise CLIError(f"--betas: {item!r} is not a number; give comma-separated SMPL shape coefficients, "
+                           "e.g. --betas 1.2,-0.5,0.3") from None
+        if not math.isfinite(v):
+            raise CLIError(f"--betas: {item!r} is not finite; give numbers, e.g. --betas 1.2,-0.5")
+        values.append(v)
+    if not 1 <= len(values) <= 10:
+        raise CLIError(f"--betas: {len(values)} values; give 1 to 10 SMPL shape coefficients (the rest are 0)")
+    return values
+
+
+def _smpl_pose_spec(args):
+    """The pose of an SMPL drape: --theta FILE.npy, --amass FILE.npz (+ --frame/--frames) or rest."""
+    import numpy as np
+
+
+    if args.bvh is not None:
+        raise CLIError("--bvh retargets onto Anny only; with --smpl-model give --amass FILE.npz (or --theta FILE.npy)")
+    if args.pose is not None and args.pose not in ("rest", "t-pose"):
+        raise CLIError(f"--pose {args.pose}: the presets are Anny poses; with --smpl-model give --theta FILE.npy "
+                       "(axis-angles [rad]) or --amass FILE.npz")
+    if args.theta is not None and args.amass is not None:
+        raise CLIError("give either --theta or --amass, not both")
+    if args.theta is not None:
+        if args.frame is not None or args.frames is not None:
+            raise CLIError("--frame/--frames select frames of an --amass file; --theta takes one pose array")
+        path = Path(args.theta).expanduser()
+        if not path.is_file():
+            raise CLIError(f"--theta {args.theta}: no such file (a .npy of SMPL axis-angles [rad], shape (24, 3) "
+                           "or (72,), or (N, 24, 3) for N poses)")
+        try:
+            theta = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise CLIError(f"--theta {args.theta}: cannot read it as a .npy array ({exc}); save θ with "
+                           "numpy.save") from None
+        return theta
+    if args.amass is None:
+        if args.frame is not None or args.frames is not None:
+            raise CLIError("--frame/--frames select frames of an --amass file; give --amass FILE.npz")
+        return None
+    path = Path(args.amass).expanduser()
+    if not path.is_file():
+        raise CLIError(f"--amass {args.amass}: no such file")
+    if path.suffix.lower() != ".npz":
+        raise CLIError(f"--amass {args.amass}: expected an AMASS .npz (poses, betas)")
+    return _motion(path, args)
+
+
+def _motion(path: Path, args):
     from physdrape.api import Motion
+
+    if args.frame is not None and args.frames is not None:
+        raise CLIError("give either --frame N or --frames A:B, not both")
+    if args.no_warm_start and args.warm_start not in (None, "off"):
+        raise CLIError(f"give either --warm-start {args.warm_start} or --no-warm-start, not both")
+    mode = "off" if args.no_warm_start else (args.warm_start or "solver")
+    warm = False if mode == "off" else mode
+    if args.frames is not None:
+        return Motion(path, _parse_frames(args.frames), warm_start=warm)
+    frame = 0 if args.frame is None else args.frame
+    if frame < 0:
+        raise CLIError(f"--frame must be >= 0, got {frame}")
+    return Motion(path, frame, warm_start=warm)
+
+
+def _pose_spec(args):
     from physdrape.body.poses import PRESETS
 
+    if args.smpl_model is not None:
+        return _smpl_pose_spec(args)
+    if args.amass is not None or args.theta is not None:
+        raise CLIError("--amass/--theta are SMPL poses; give --smpl-model FILE (the SMPL model .npz/.pkl) too")
     if args.bvh is None:
         if args.frame is not None or args.frames is not None:
             raise CLIError("--frame/--frames select frames of a --bvh file; give --bvh FILE")
@@ -160,19 +245,12 @@ def _pose_spec(args):
         return pose
     if args.pose is not None:
         raise CLIError("give either --pose or --bvh, not both")
-    if args.frame is not None and args.frames is not None:
-        raise CLIError("give either --frame N or --frames A:B, not both")
     path = Path(args.bvh).expanduser()
     if not path.is_file():
         raise CLIError(f"--bvh {args.bvh}: no such file")
     if path.suffix.lower() != ".bvh":
         raise CLIError(f"--bvh {args.bvh}: expected a .bvh motion file (CMU skeleton)")
-    if args.frames is not None:
-        return Motion(path, _parse_frames(args.frames))
-    frame = 0 if args.frame is None else args.frame
-    if frame < 0:
-        raise CLIError(f"--frame must be >= 0, got {frame}")
-    return Motion(path, frame)
+    return _motion(path, args)
 
 
 def _safe(name: str) -> str:
@@ -196,7 +274,23 @@ def cmd_drape(args: argparse.Namespace) -> int:
         raise CLIError(f"--render-size must be in [32, 4096] pixels, got {args.render_size}")
     out = Path(args.out).expanduser()
     _check_out_dir(out, args.force)
-    shape = _parse_shape(args.shape)
+    smpl = args.smpl_model is not None
+    if smpl:
+        if args.shape is not None:
+            raise CLIError("--shape sets Anny phenotypes; an SMPL body is shaped by --betas b1,b2,...")
+        if not Path(args.smpl_model).expanduser().exists():
+            raise CLIError(f"--smpl-model {args.smpl_model}: no such file. SMPL/SMPL-X models are not shipped with "
+                           "PhysDrape: download them from https://smpl.is.tue.mpg.de and pass the .npz/.pkl file "
+                           "(or the folder holding SMPL_NEUTRAL.npz)")
+        if not args.garment or args.category is not None or args.seed is not None:
+            raise CLIError("with --smpl-model give --garment FILE (.obj/.ply, metres, y-up) authored on SMPL's "
+                           "canonical body (beta = 0, zero pose): the bundled default and --category garments are "
+                           "made for the Anny body and do not fit SMPL")
+        shape = _parse_betas(args.betas)
+    else:
+        if args.betas is not None:
+            raise CLIError("--betas shapes an SMPL body; give --smpl-model FILE too (Anny bodies take --shape)")
+        shape = _parse_shape(args.shape)
     pose = _pose_spec(args)
     material = _material_from_args(args)
     garments = _garment_specs(args)
@@ -217,7 +311,8 @@ def cmd_drape(args: argparse.Namespace) -> int:
     )
 
     try:
-        draper = api.Draper(args.checkpoint, steps=15 if args.steps is None else args.steps)
+        draper = api.Draper(args.checkpoint, steps=15 if args.steps is None else args.steps,
+                            smpl_model=args.smpl_model, smpl_gender=args.smpl_gender)
         results = draper.drape(garments, shape=shape, pose=pose, material=material, refine=args.refine,
                                keep_trace=args.figures, batch_size=args.batch_size, progress=len(garments) > 1 or
                                isinstance(pose, api.Motion) and not isinstance(pose.frames, int))
@@ -225,9 +320,13 @@ def cmd_drape(args: argparse.Namespace) -> int:
         if args.figures:
             from physdrape.physics.presets import MATERIAL_PRESETS
 
-            sweep = draper.drape(garments[0], shape=shape, pose=pose if not isinstance(pose, api.Motion) else
-                                 api.Motion(pose.path, pose.frames if isinstance(pose.frames, int) else pose.frames[0]),
-                                 material=list(MATERIAL_PRESETS.values()))
+            if isinstance(pose, api.Motion):
+                first_pose = api.Motion(pose.path, pose.frames if isinstance(pose.frames, int) else pose.frames[0])
+            elif pose is not None and not isinstance(pose, str):  # SMPL θ array: its first pose
+                first_pose = draper.poses(pose)[0].pose[0].numpy()
+            else:
+                first_pose = pose
+            sweep = draper.drape(garments[0], shape=shape, pose=first_pose, material=list(MATERIAL_PRESETS.values()))
     except api.DrapeError as exc:
         raise CLIError(str(exc)) from None
 
@@ -261,7 +360,8 @@ def cmd_drape(args: argparse.Namespace) -> int:
             "checkpoint": str(draper.checkpoint),
             "steps": draper.steps,
             "refine": bool(args.refine),
-            "shape": shape or {},
+            "shape": (shape or {}) if not smpl else {"betas": shape or "from the AMASS file or 0"},
+            "body": "smpl" if smpl else "anny",
             "num_results": len(results),
             "wall_time_s": wall,
             "results": reports,
@@ -348,9 +448,24 @@ def add_drape_parsers(sub) -> None:
     b.add_argument("--pose", metavar="NAME|random:SEED", help=f"pose preset ({', '.join(PRESETS)}; default relaxed) "
                    "or random:SEED (anatomical sampler)")
     b.add_argument("--bvh", metavar="FILE", help="CMU BVH motion file; retargeted onto Anny")
-    b.add_argument("--frame", type=int, help="frame of --bvh (default 0)")
-    b.add_argument("--frames", metavar="A:B", help="frames A..B-1 of --bvh, draped as one batch (no warm start: "
-                   "the model is static, see below)")
+    b.add_argument("--frame", type=int, help="frame of --bvh / --amass (default 0)")
+    b.add_argument("--frames", metavar="A:B", help="frames A..B-1 of --bvh / --amass, warm-started frame by frame "
+                   "(see below)")
+    b.add_argument("--warm-start", choices=("solver", "model", "off"), help="how later --frames start from the "
+                   "previous frame's drape: solver (default: solver steps + collision handler only), model (full "
+                   "model pass; drifts), off (= --no-warm-start)")
+    b.add_argument("--no-warm-start", action="store_true", help="drape --frames independently, as one batch, each "
+                   "from its own kinematic initialisation")
+    s = drape.add_argument_group("SMPL / SMPL-X body (bring your own model file)")
+    s.add_argument("--smpl-model", metavar="FILE", help="SMPL/SMPL+H/SMPL-X model .npz (or legacy .pkl), or a folder "
+                   "holding SMPL_NEUTRAL.npz; drapes on that body instead of Anny")
+    s.add_argument("--smpl-gender", default="neutral", help="picks SMPL_{GENDER} in a --smpl-model folder "
+                   "(default neutral)")
+    s.add_argument("--betas", metavar="B1,B2,...", help="SMPL shape coefficients (up to 10; missing ones 0)")
+    s.add_argument("--theta", metavar="FILE.npy", help="SMPL pose: axis-angles [rad], (24, 3) or (72,) for SMPL, "
+                   "(N, 24, 3) for N poses")
+    s.add_argument("--amass", metavar="FILE.npz", help="AMASS sequence (poses, betas); pick frames with --frame / "
+                   "--frames")
     m = drape.add_argument_group("material (SI units)")
     m.add_argument("--material", help=f"fabric preset: {', '.join(MATERIAL_PRESETS)} (default cotton)")
     m.add_argument("--mu", type=float, help="Lame shear modulus [Pa] (trained 1.59e4..6.36e4)")

@@ -14,31 +14,7 @@ import torch
 from physdrape.body.model import apply_transforms
 from physdrape.body.poses import load_amass_npz
 
-SMPL_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
-
-
-def synthetic_smpl(seed: int = 0) -> dict:
-    """An icosphere 'body' (162 vertices) with SMPL's 24-joint layout and random valid data."""
-    import trimesh
-
-    rng = np.random.default_rng(seed)
-    m = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
-    V, J = len(m.vertices), 24
-    v_template = np.array(m.vertices) * np.array([1.0, 2.5, 0.6])
-    weights = rng.dirichlet(np.full(J, 0.3), size=V)
-    J_reg = rng.random((J, V)) * (rng.random((J, V)) < 0.1)
-    J_reg[:, 0] += 1e-3
-    J_reg /= J_reg.sum(1, keepdims=True)
-    kintree = np.array([[4294967295] + SMPL_PARENTS[1:], list(range(J))], dtype=np.int64)
-    return {
-        "v_template": v_template,
-        "shapedirs": 0.01 * rng.standard_normal((V, 3, 10)),
-        "posedirs": 0.01 * rng.standard_normal((V, 3, 9 * (J - 1))),
-        "J_regressor": J_reg,
-        "weights": weights,
-        "kintree_table": kintree,
-        "f": np.array(m.faces, dtype=np.uint32),
-    }
+from smpl_helpers import SMPL_PARENTS, synthetic_smpl
 
 
 @pytest.fixture(scope="module")
@@ -197,3 +173,28 @@ def test_smplx_layout_55_joints_and_object_entries(smplx, tmp_path):
     st = body(torch.zeros(2, 10, dtype=torch.float64), 0.2 * torch.ones(2, 165, dtype=torch.float64))
     assert st.verts.shape == (2, V, 3)
     assert (apply_transforms(st.vertex_transforms, st.rest_verts) - st.verts).abs().max() < 1e-12
+
+
+def test_amass_without_trans_and_joint_mapping(tmp_path):
+    """Only `poses` is required; SMPL+H hand joints are not copied into SMPL-X's jaw/eyes."""
+    rng = np.random.default_rng(2)
+    poses = 0.2 * rng.standard_normal((3, 156))
+    np.savez(tmp_path / "seq.npz", poses=poses)
+    seq = load_amass_npz(tmp_path / "seq.npz", z_up=False, dtype=torch.float64)
+    assert seq["transl"].shape == (3, 3) and (seq["transl"] == 0).all() and (seq["betas"] == 0).all()
+    x = load_amass_npz(tmp_path / "seq.npz", num_joints=55, z_up=False, dtype=torch.float64)["pose"]
+    assert torch.allclose(x[:, :22], torch.tensor(poses[:, :66]).reshape(3, 22, 3)) and (x[:, 22:] == 0).all()
+    h = load_amass_npz(tmp_path / "seq.npz", num_joints=52, z_up=False, dtype=torch.float64)["pose"]
+    assert torch.allclose(h, torch.tensor(poses).reshape(3, 52, 3))
+    np.savez(tmp_path / "bad.npz", trans=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="missing 'poses'"):
+        load_amass_npz(tmp_path / "bad.npz")
+
+
+def test_rig_names_and_parts(smplx, npz_path):
+    from physdrape.body.smpl_body import SMPLBody
+
+    body = SMPLBody(npz_path)
+    assert body.rig == "smpl"
+    part = body.vertex_part()
+    assert part.shape == (body.num_verts,) and int(part.max()) < body.num_joints

@@ -82,11 +82,17 @@ def test_many_garments_one_batch(bundled, tmp_path, default_obj):
 
 
 @pytest.mark.skipif(not BVH_FILES, reason=f"no CMU BVH files in {BVH_DIR}")
-def test_bvh_frames_are_batched(bundled, tmp_path):
+def test_bvh_frames_warm_started_or_batched(bundled, tmp_path):
     out = tmp_path / "bvh"
     assert main(["drape", "--bvh", str(BVH_FILES[0]), "--frames", "0:2", "--out", str(out), *FAST]) == 0
-    poses = [e["pose"] for e in _report(out)["results"]]
-    assert poses == [f"{BVH_FILES[0].name}#0", f"{BVH_FILES[0].name}#1"]
+    results = _report(out)["results"]
+    assert [e["pose"] for e in results] == [f"{BVH_FILES[0].name}#0", f"{BVH_FILES[0].name}#1"]
+    assert [e["init"] for e in results] == ["skinning", "warm"]  # warm start is the default
+    cold = tmp_path / "cold"
+    assert main(["drape", "--bvh", str(BVH_FILES[0]), "--frames", "0:2", "--no-warm-start", "--out", str(cold),
+                 *FAST]) == 0
+    results = _report(cold)["results"]
+    assert [e["init"] for e in results] == ["skinning", "skinning"] and results[0]["timings_s"]["batch_size"] == 2
 
 
 def test_fit_places_and_writes(anny_body, tmp_path, default_obj):

@@ -128,7 +128,7 @@ def sheet_over_box_edge() -> DrapeInput:
 def test_converged_oracle_row_meets_its_tolerance(checkpoint):
     model, _ = load_model(checkpoint, variant=Variant.FULL)
     config = EvalConfig(instances=1, oracle_budget_s=30.0)
-    inst = _Instance("test", 0, "sheet", 0, 0, 81, sheet_over_box_edge())
+    inst = _Instance("test", 0, "sheet", 0, 0, 81, sheet_over_box_edge)
     data = _evaluate_set([inst], {"full": model}, {"full": ("full", 3)}, config, log=lambda _: None)
     (record,) = data["oracle"]["per_instance"]
     assert record["converged"], record["reason"]

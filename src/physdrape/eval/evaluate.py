@@ -35,7 +35,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -191,13 +193,19 @@ def garment_of(i: int, num_instances: int, num_garments: int) -> int:
 
 @dataclass
 class _Instance:
+    """One test instance; its tensors (`batch`) are built on demand and dropped after use, so the
+    evaluation holds one instance in memory at a time."""
+
     set_name: str
     index: int
     garment: str
     garment_index: int
     body_index: int
     num_verts: int
-    batch: DrapeInput
+    build: Callable[[], DrapeInput]
+
+    def batch(self) -> DrapeInput:
+        return self.build()
 
 
 def _instance_batch(source, garment: int, body: int) -> DrapeInput:
@@ -221,8 +229,8 @@ def _test_instances(config: EvalConfig, body=None) -> tuple[list[_Instance], obj
     out = []
     for i in range(config.instances):
         g = garment_of(i, config.instances, len(source.templates))
-        batch = _instance_batch(source, g, i)
-        out.append(_Instance("test", i, source.templates[g].name, g, i, batch.garments.num_verts, batch))
+        out.append(_Instance("test", i, source.templates[g].name, g, i, source.templates[g].num_verts,
+                             partial(_instance_batch, source, g, i)))
     return out, source
 
 
@@ -257,8 +265,8 @@ def _makehuman_instances(config: EvalConfig, body) -> tuple[list[_Instance], lis
     out = []
     for i in range(count):
         g = i % len(templates)
-        batch = _instance_batch(source, g, i)
-        out.append(_Instance("makehuman", i, templates[g].name, g, i, batch.garments.num_verts, batch))
+        out.append(_Instance("makehuman", i, templates[g].name, g, i, templates[g].num_verts,
+                             partial(_instance_batch, source, g, i)))
     return out, notes
 
 
@@ -342,18 +350,19 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
     oracle: list[dict] = []
     start: list[dict] = []
     for inst in instances:
-        start.append({**_metrics(inst.batch.x_init, inst.batch), "wall_s": 0.0})
+        batch = inst.batch()
+        start.append({**_metrics(batch.x_init, batch), "wall_s": 0.0})
         for key, (model_key, steps) in rows.items():
-            x, wall = run_model(models[model_key], inst.batch, steps=steps)
-            rec = _metrics(x, inst.batch)
+            x, wall = run_model(models[model_key], batch, steps=steps)
+            rec = _metrics(x, batch)
             rec["wall_s"] = wall
             per_row[key].append(rec)
+        line = f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment} ({inst.num_verts} verts)"
         if config.oracle:
-            oracle.append(_oracle_record(run_oracle(inst.batch, config), inst.batch))
-            log(f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment} ({inst.num_verts} verts): "
-                f"oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s")
-        else:
-            log(f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment}")
+            oracle.append(_oracle_record(run_oracle(batch, config), batch))
+            line += f": oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s"
+        del batch
+        log(f"{line}; peak memory {_peak_rss_gib():.1f} GiB")
     oracle_summary = _summary(oracle) if oracle else None
     if oracle_summary is not None:
         oracle_summary["converged"] = sum(r["converged"] for r in oracle)
@@ -368,6 +377,13 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
         "x_init": {"summary": _with_ratios(_summary(start), oracle_summary), "per_instance": start},
     }
     return result
+
+
+def _peak_rss_gib() -> float:
+    """Peak resident memory of this process so far [GiB] (Linux: ru_maxrss in KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
 def _versions() -> dict:

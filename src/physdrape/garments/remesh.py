@@ -3,7 +3,9 @@
 Uses gpytoolbox's Botsch-Kobbelt remesher (split / collapse / flip / tangential relaxation,
 reprojection onto the input). Boundary edges are passed as feature edges: they are split and
 collapsed only along the boundary and their vertices stay on the input's boundary polylines, so
-every open loop (neck, hem, sleeve ends) survives with its shape.
+every open loop (neck, hem, sleeve ends) survives with its shape. Because those polylines keep
+their irregular spacing, the result is then cleaned (`physdrape.garments.mesh_cleanup`: short
+edges collapsed, flat boundary ears removed, slivers flipped) and remeshed once more.
 """
 
 from __future__ import annotations

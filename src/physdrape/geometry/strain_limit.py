@@ -54,7 +54,6 @@ def limit_edge_stretch(
                          f"{tuple(rest_lengths.shape)}")
     i, j = edges[:, 0], edges[:, 1]
     bound = max_stretch * rest_lengths.to(x.dtype)
-    num_verts = x.shape[-2]
     for _ in range(iterations):
         d = x[..., j, :] - x[..., i, :]
         length = d.norm(dim=-1)

@@ -73,8 +73,8 @@ def write_amass(path: str | Path, frames: int = 4, *, seed: int = 0, scale: floa
     rng = np.random.default_rng(seed)
     poses = scale * rng.standard_normal((frames, 156))
     poses[:, :3] = [np.pi / 2, 0.0, 0.0]
-    data = dict(poses=poses, betas=0.5 * rng.standard_normal(16), trans=np.zeros((frames, 3)),
-                gender="neutral", mocap_framerate=60.0)
+    data = {"poses": poses, "betas": 0.5 * rng.standard_normal(16), "trans": np.zeros((frames, 3)),
+                "gender": "neutral", "mocap_framerate": 60.0}
     data.update(extra)
     data = {k: v for k, v in data.items() if v is not None}
     path = Path(path)
