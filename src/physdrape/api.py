@@ -703,33 +703,15 @@ class Draper:
         return DrapeOutput(x=x, x_gnn=inp.x_init, f_hat=f_hat, trace=tuple(trace))
 
     def _blended_affine(self, template: _Template, rig: str, state) -> Tensor:
-        """T_i = sum_j W_ij T_j: the body's skinning transforms (state (1, Vb, 4, 4)) blended per
-        garment vertex by the transfer weights W, top rows, shape (V, 3, 4) float64."""
-        import warnings
-
-        transfer = self.transfer(template, rig)
-        transforms = state.vertex_transforms[0, :, :3, :].to(torch.float64)
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-            weights = transfer.weights.to(torch.float64)
-            blended = weights @ transforms.reshape(transforms.shape[0], 12)
-        return blended.reshape(-1, 3, 4)
+        """The body's skinning transforms blended per garment vertex (state of batch 1), (V, 3, 4) float64."""
+        return self.transfer(template, rig).blended_transforms(state)[0].to(torch.float64)
 
     def _warm_init(self, template: _Template, rig: str, x_prev: Tensor, a_prev: Tensor, a_now: Tensor) -> Tensor:
         """X_init(t) = T(t) T(t-1)^-1 X*(t-1) per garment vertex, then edge-stretch limited like
         the skinned X_init (float64, (V, 3))."""
         x_rest = torch.linalg.solve(a_prev[..., :3], (x_prev - a_prev[..., 3]).unsqueeze(-1))
         x = (a_now[..., :3] @ x_rest).squeeze(-1) + a_now[..., 3]
-        transfer = self.transfer(template, rig)
-        max_stretch = getattr(transfer, "max_stretch", None)
-        if max_stretch is not None:
-            from physdrape.geometry.strain_limit import limit_edge_stretch
-
-            t = torch.from_numpy(template.verts)
-            edges = transfer.edges
-            rest_lengths = (t[edges[:, 1]] - t[edges[:, 0]]).norm(dim=-1)
-            x = limit_edge_stretch(x, edges, rest_lengths, max_stretch=max_stretch)
-        return x
+        return self.transfer(template, rig).limit_stretch(x)
 
     @staticmethod
     def _refuse_penetrating_poses(state, body, labels: list[str], tolerance: int) -> None:
@@ -987,6 +969,7 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
     """
     from physdrape.garments import load_mhclo, validate_garment
     from physdrape.garments.mhclo import resolve_body_penetration
+    from physdrape.garments.untangle import untangle_garment
     from physdrape.geometry.garment import Garment
     from physdrape.geometry.mesh import check_mesh, read_mesh
     from physdrape.geometry.proximity import BodySurface
@@ -1005,9 +988,13 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         raise DrapeError(f"scale {scale:g} is implausible for a garment in metres: give a factor near 1 "
                          "(convert units first: 0.01 for cm, 0.1 for dm)")
     shift = np.zeros(3)
+    bv, bf = canonical.numpy(), faces_b.numpy()
+    raw = None
     if path.suffix.lower() == ".mhclo":
-        g = load_mhclo(path)
-        verts, faces, name = np.asarray(g.verts, np.float64), np.asarray(g.faces, np.int64), g.name
+        g = load_mhclo(path, resolve_margin=None)
+        raw = np.asarray(g.verts, np.float64)
+        verts, faces, name = raw.copy(), np.asarray(g.faces, np.int64), g.name
+        verts, _ = resolve_body_penetration(verts, faces, bv, bf, margin=2e-3)
     else:
         verts, faces = read_mesh(path)
         name = path.stem
@@ -1025,7 +1012,11 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         if align:
             shift = _align_to_body(verts, body, scale=scale)
         verts = verts * scale + shift
-        verts, _ = resolve_body_penetration(verts, faces, canonical.numpy(), faces_b.numpy(), margin=2e-3)
+        verts, _ = resolve_body_penetration(verts, faces, bv, bf, margin=2e-3)
+    # Layered pieces (a suit's top over its trousers) and tight creases cross each other once
+    # refit/pushed out: untangle them locally before the physics takes this shape as its rest state.
+    verts, info = untangle_garment(verts, faces, bv, bf, margin=2e-3)
+    untangle_stats = {"before_relax": info.as_dict()}
     stats: dict[str, Any] = {"iterations": 0}
     if iters > 0:
         garment = Garment.from_mesh(verts, faces, name=name, dtype=torch.float64)
@@ -1036,7 +1027,13 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         stats = {"iterations": len(result.history) - 1, "reason": result.reason, "wall_time_s": result.wall_time,
                  "residual": float(result.residual[0]),
                  "energy_J": {k: float(v[0]) for k, v in result.energy_terms.items()}}
-    report = validate_garment(verts, faces, name=name, body=(canonical.numpy(), faces_b.numpy()),
-                              require_clearance=False, max_inside_area_fraction=0.05)
+    if iters > 0:  # the relaxed sheet rests in contact: back out to the margin, untangle again
+        verts, info = untangle_garment(verts, faces, bv, bf, margin=2e-3)
+        untangle_stats["after_relax"] = info.as_dict()
+    stats["untangle"] = untangle_stats
+    if raw is not None:  # how far the fit moved the MakeHuman refit [m]
+        disp = np.linalg.norm(verts - raw, axis=1)
+        stats["displacement_from_refit_m"] = {"max": float(disp.max()), "mean": float(disp.mean())}
+    report = validate_garment(verts, faces, name=name, body=(bv, bf), margin=2e-3, require_clearance=True)
     return FitResult(name=name, verts=verts, faces=faces, scale=float(scale), translation=[float(v) for v in shift],
                      relax=stats, validation=str(report), ok=report.ok)

@@ -234,6 +234,31 @@ class SkinningTransfer:
         weight = torch.zeros(self.num_verts, width, dtype=val.dtype).index_put_((row, slot), val)
         return index, weight
 
+    def _blend(self, per_body_vertex: Tensor) -> Tensor:
+        """W @ values per batch element: (B, Vb, C) -> (B, V, C), in the values' dtype."""
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+            weights = self.weights.to(device=per_body_vertex.device, dtype=per_body_vertex.dtype)
+        batch, num_body, width = per_body_vertex.shape
+        blended = weights @ per_body_vertex.permute(1, 0, 2).reshape(num_body, batch * width)
+        return blended.reshape(self.num_verts, batch, width).permute(1, 0, 2)
+
+    def blended_transforms(self, body) -> Tensor:
+        """T_i = sum_j W_ij T_j: the body's skinning transforms blended per garment vertex, top
+        three rows, shape (B, V, 3, 4) (X_init = T_i[:3, :3] x_rest + T_i[:3, 3])."""
+        transforms = body.vertex_transforms
+        batch, num_body = transforms.shape[:2]
+        return self._blend(transforms[..., :3, :].reshape(batch, num_body, 12)).reshape(batch, self.num_verts, 3, 4)
+
+    def limit_stretch(self, x: Tensor, garment_verts: Tensor | None = None) -> Tensor:
+        """Bound the edge stretch of garment positions x (..., V, 3) by `max_stretch` relative to
+        the template (the garment's rest state in the physics); identity when it is None."""
+        if self.max_stretch is None:
+            return x
+        x_temp = (self.template_verts if garment_verts is None else garment_verts).to(x.dtype)
+        rest_lengths = (x_temp[..., self.edges[:, 1], :] - x_temp[..., self.edges[:, 0], :]).norm(dim=-1)
+        return limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=self.max_stretch)
+
     def apply(self, body, garment_verts: Tensor | None = None) -> Tensor:
         """X_init = LBS(X_temp + dX_shape, pose) on a batch of bodies (paper Eq. 5).
 
@@ -262,21 +287,12 @@ class SkinningTransfer:
         if garment_verts is not None and garment_verts.dtype != dtype:
             raise TypeError(f"garment_verts have dtype {garment_verts.dtype}, the body {dtype}; convert explicitly")
         x_temp = x_temp.to(device=device, dtype=dtype)
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-            weights = self.weights.to(device=device, dtype=dtype)
         canonical = self.canonical_verts.to(device=device, dtype=dtype)
 
         # One sparse product blends the shape displacement and the top 3 rows of the transforms.
         batch, num_body = rest.shape[:2]
-        per_vertex = torch.cat([rest - canonical, transforms[..., :3, :].reshape(batch, num_body, 12)], -1)
-        blended = (weights @ per_vertex.permute(1, 0, 2).reshape(num_body, batch * 15))
-        blended = blended.reshape(self.num_verts, batch, 15).permute(1, 0, 2)  # (B, V, 15)
+        blended = self._blend(torch.cat([rest - canonical, transforms[..., :3, :].reshape(batch, num_body, 12)], -1))
         x_rest = x_temp + blended[..., :3]
         affine = blended[..., 3:].reshape(batch, self.num_verts, 3, 4)
         x = torch.einsum("bvij,bvj->bvi", affine[..., :3], x_rest) + affine[..., 3]
-        if self.max_stretch is None:
-            return x
-        # Bounded relative to the template (the garment's rest state in the physics).
-        rest_lengths = (x_temp[..., self.edges[:, 1], :] - x_temp[..., self.edges[:, 0], :]).norm(dim=-1)
-        return limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=self.max_stretch)
+        return self.limit_stretch(x, x_temp)
