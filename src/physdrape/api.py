@@ -961,8 +961,14 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
     An .mhclo is refit through its MakeHuman binding (exact); an .obj/.ply (metres, y-up) is
     scaled by `scale` and translated onto the body (`_align_to_body`), pushed out of the body, then
     relaxed with the physics oracle (`physics.relax`, the garment's own aligned shape as rest
-    state, gravity and body contact, at most `iters` Newton iterations) and validated
-    (`garments.validate_garment`, contact allowed, at most 5 % of the area inside the body).
+    state, gravity and body contact, at most `iters` Newton iterations) and validated as a
+    template (`garments.validate_garment`: no self-intersections, >= 2 mm body clearance).
+    Crossing layers (a suit's top over its trousers) and creases are untangled locally
+    (`garments.untangle.untangle_garment`) before the relaxation and again after it, which also
+    puts the sheet back at the margin; if the relaxed shape cannot be untangled (the physics has
+    no self-collision) the untangled rest shape is returned (``relax["discarded"]`` says so).
+    ``relax`` also holds the untangling stats and, for an .mhclo, the displacement from the raw
+    MakeHuman refit.
 
     Raises:
         DrapeError / MeshError: unreadable file, wrong unit, or a malformed mesh.
@@ -1017,6 +1023,7 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
     # refit/pushed out: untangle them locally before the physics takes this shape as its rest state.
     verts, info = untangle_garment(verts, faces, bv, bf, margin=2e-3)
     untangle_stats = {"before_relax": info.as_dict()}
+    rest = verts
     stats: dict[str, Any] = {"iterations": 0}
     if iters > 0:
         garment = Garment.from_mesh(verts, faces, name=name, dtype=torch.float64)
@@ -1028,8 +1035,16 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
                  "residual": float(result.residual[0]),
                  "energy_J": {k: float(v[0]) for k, v in result.energy_terms.items()}}
     if iters > 0:  # the relaxed sheet rests in contact: back out to the margin, untangle again
-        verts, info = untangle_garment(verts, faces, bv, bf, margin=2e-3)
+        relaxed, info = untangle_garment(verts, faces, bv, bf, margin=2e-3)
         untangle_stats["after_relax"] = info.as_dict()
+        if info.faces_after and not untangle_stats["before_relax"]["self_intersecting_faces_after"]:
+            # the physics has no self-collision: layers it pushed through each other that the
+            # local untangling cannot separate again -> keep the valid unrelaxed shape
+            stats["discarded"] = (f"the relaxed shape kept {info.faces_after} self-intersecting faces; "
+                                  "the aligned, untangled shape (the physics rest state) is returned")
+            verts = rest
+        else:
+            verts = relaxed
     stats["untangle"] = untangle_stats
     if raw is not None:  # how far the fit moved the MakeHuman refit [m]
         disp = np.linalg.norm(verts - raw, axis=1)

@@ -5,6 +5,7 @@ Closest points, signed distances and inside tests against a body are
 the garment tools need, on Warp's triangle BVH (CPU, float32: exact to ~1e-6 m):
 
 - `self_intersecting_faces`: faces of a garment crossing another face of the same garment;
+- `self_intersecting_pairs`: the crossing face pairs themselves (to untangle them);
 - `ray_hit_distances`: how far rays travel before they hit a mesh (free space in front of a body).
 """
 
@@ -14,7 +15,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["self_intersecting_faces", "ray_hit_distances"]
+__all__ = ["self_intersecting_faces", "self_intersecting_pairs", "ray_hit_distances"]
 
 _DEVICE = "cpu"
 
@@ -71,6 +72,40 @@ def _warp():
                         hits[i] = hits[i] + 1
                         wp.atomic_add(hits, j, 1)
 
+    @wp.kernel(enable_backward=False)
+    def self_pairs_kernel(
+        mesh: wp.uint64,
+        points: wp.array(dtype=wp.vec3),
+        faces: wp.array(dtype=wp.int32, ndim=2),
+        count: wp.array(dtype=wp.int32),
+        pairs: wp.array(dtype=wp.int32, ndim=2),
+    ):
+        i = wp.tid()
+        a0 = points[faces[i, 0]]
+        a1 = points[faces[i, 1]]
+        a2 = points[faces[i, 2]]
+        lo = wp.min(wp.min(a0, a1), a2)
+        hi = wp.max(wp.max(a0, a1), a2)
+        query = wp.mesh_query_aabb(mesh, lo, hi)
+        j = int(0)
+        while wp.mesh_query_aabb_next(query, j):
+            if j > i:
+                shared = int(0)
+                for r in range(3):
+                    for s in range(3):
+                        if faces[i, r] == faces[j, s]:
+                            shared = shared + 1
+                if shared == 0:
+                    b0 = points[faces[j, 0]]
+                    b1 = points[faces[j, 1]]
+                    b2 = points[faces[j, 2]]
+                    if wp.intersect_tri_tri(a0, a1, a2, b0, b1, b2) != 0:
+                        k = wp.atomic_add(count, 0, 1)
+                        if k < pairs.shape[0]:
+                            pairs[k, 0] = i
+                            pairs[k, 1] = j
+
+    _warp.pairs_kernel = self_pairs_kernel
     return wp, ray_kernel, self_intersect_kernel
 
 
@@ -99,6 +134,35 @@ def self_intersecting_faces(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     hits = wp.zeros(len(faces), dtype=wp.int32, device=_DEVICE)
     wp.launch(kernel, dim=len(faces), inputs=[mesh.id, mesh.points, f2], outputs=[hits], device=_DEVICE)
     return np.flatnonzero(hits.numpy() > 0).astype(np.int64)
+
+
+def self_intersecting_pairs(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The pairs (i, j), i < j, of faces that intersect while sharing no vertex.
+
+    Args:
+        verts: vertex positions [m], shape (V, 3); faces: triangles, shape (F, 3) int.
+
+    Returns:
+        shape (K, 2) int64, sorted (empty when intersection-free).
+    """
+    if len(faces) == 0:
+        return np.zeros((0, 2), np.int64)
+    wp, _, _ = _warp()
+    kernel = _warp.pairs_kernel
+    mesh = _mesh(wp, verts, faces)
+    f2 = wp.array(np.asarray(faces, np.int32), dtype=wp.int32, ndim=2, device=_DEVICE)
+    capacity = max(1024, 4 * len(faces))
+    while True:
+        count = wp.zeros(1, dtype=wp.int32, device=_DEVICE)
+        pairs = wp.zeros((capacity, 2), dtype=wp.int32, device=_DEVICE)
+        wp.launch(kernel, dim=len(faces), inputs=[mesh.id, mesh.points, f2], outputs=[count, pairs],
+                  device=_DEVICE)
+        n = int(count.numpy()[0])
+        if n <= capacity:
+            break
+        capacity = n
+    out = pairs.numpy()[:n].astype(np.int64)
+    return out[np.lexsort((out[:, 1], out[:, 0]))]
 
 
 def ray_hit_distances(
