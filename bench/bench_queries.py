@@ -136,11 +136,12 @@ def main() -> None:
                      f"{median_ms_nowarm(lambda: surface.update(moved), args.repeats):9.2f} ms"))
         surface.update(verts)
         for dtype in (torch.float32, torch.float64):
-            s = surface if dtype == torch.float64 else BodySurface(verts.to(dtype), faces, sign_method=method)
-            x = x64.to(dtype)
-            s.query(x)
-            rows.append((f"[{method.value}] query {n} pts, {str(dtype)[6:]}",
-                         f"{median_ms_nowarm(lambda: s.query(x), args.repeats):9.2f} ms"))
+            for threads in (1, 2):  # side by side: the BVH search on one thread, or split over two
+                s = BodySurface(verts.to(dtype), faces, sign_method=method, search_threads=threads)
+                x = x64.to(dtype)
+                s.query(x)
+                rows.append((f"[{method.value}] query {n} pts, {str(dtype)[6:]}, {threads} search thread(s)",
+                             f"{median_ms_nowarm(lambda: s.query(x), args.repeats):9.2f} ms"))
         x32 = x64.float().contiguous()
         body_idx = torch.zeros(n, dtype=torch.int32)
         rows.append((f"[{method.value}]   of which Warp BVH search",

@@ -354,3 +354,15 @@ def test_anny_canonical_body_matches_brute_force(request):
         assert torch.allclose(q.signed_distance[chunk:chunk + 50].abs(), dist, atol=1e-6)
         off = dist > 1e-5
         assert torch.equal(q.inside[chunk:chunk + 50][off], (wn > 0.5)[off])
+
+
+@pytest.mark.parametrize("sign_method", list(SignMethod))
+def test_search_split_over_threads_is_bit_identical(sign_method):
+    verts, faces = torus()
+    x = sample_points(verts, faces, 3000, 1000, seed=3)
+    single = BodySurface(verts, faces, sign_method=sign_method, search_threads=1).query(x)
+    split = BodySurface(verts, faces, sign_method=sign_method, search_threads=3).query(x)
+    for field in ("face", "inside", "closest", "signed_distance", "normal"):
+        assert torch.equal(getattr(single, field), getattr(split, field)), field
+    with pytest.raises(ValueError, match="search_threads"):
+        BodySurface(verts, faces, search_threads=0)

@@ -226,6 +226,18 @@ def _edge_neighbours(faces: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 
 
+#: Below this many points per thread the search runs on one thread (launch overhead dominates).
+_MIN_POINTS_PER_THREAD = 1024
+
+
+@functools.cache
+def _search_pool(workers: int):
+    """A shared thread pool for chunked BVH searches (Warp releases the GIL inside a kernel)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="physdrape-bvh")
+
+
 @functools.cache
 def _warp():
     """Import warp and define the query kernels (first call only)."""
@@ -323,6 +335,9 @@ class BodySurface:
         sign_method: how ``inside`` (and so the sign of d) is decided; see ``SignMethod``.
         near_tol: distance [m] below which a point counts as on the surface and gets the
             pseudo-normal of its closest feature instead of the direction of ``x - p``.
+        search_threads: CPU threads that share the BVH search of one query (Warp's CPU kernels
+            are serial; the points are split into chunks launched from a thread pool, bit-for-bit
+            the same result). None = torch's thread count (`torch.get_num_threads()`).
         winding_accuracy: Warp's fast-winding-number accuracy (its ``beta``: a BVH node is
             replaced by its dipole expansion when farther than beta times its radius; larger is
             more exact and slower). 1.0 gave the same inside flags as 2.0 (Warp's default), 4.0
@@ -338,8 +353,12 @@ class BodySurface:
         sign_method: SignMethod | str = SignMethod.WINDING_NUMBER,
         near_tol: float = 1e-6,
         winding_accuracy: float = 1.0,
+        search_threads: int | None = None,
     ) -> None:
         self.sign_method = SignMethod(sign_method)
+        if search_threads is not None and search_threads < 1:
+            raise ValueError(f"search_threads must be >= 1 or None, got {search_threads}")
+        self.search_threads = search_threads
         if not near_tol > 0:
             raise ValueError(f"near_tol must be > 0, got {near_tol}")
         if not winding_accuracy >= 1.0:
@@ -417,19 +436,31 @@ class BodySurface:
         wp, closest_kernel, closest_winding_kernel = _warp()
         n = points32.shape[0]
         face = torch.empty(n, dtype=torch.int32, device=points32.device)
-        wp_points = wp.from_torch(points32, dtype=wp.vec3)
-        wp_body = wp.from_torch(body, dtype=wp.int32)
+        with_wn = self.sign_method is SignMethod.WINDING_NUMBER
+        inside = torch.empty(n, dtype=torch.int32, device=points32.device) if with_wn else None
         max_dist = 1.0e30
-        if self.sign_method is SignMethod.WINDING_NUMBER:
-            inside = torch.empty(n, dtype=torch.int32, device=points32.device)
-            wp.launch(closest_winding_kernel, dim=n, device=self._wp_device,
-                      inputs=[self._mesh_ids, wp_body, wp_points, max_dist, self.winding_accuracy],
-                      outputs=[wp.from_torch(face, dtype=wp.int32), wp.from_torch(inside, dtype=wp.int32)])
-        else:
-            inside = None
-            wp.launch(closest_kernel, dim=n, device=self._wp_device,
-                      inputs=[self._mesh_ids, wp_body, wp_points, max_dist],
-                      outputs=[wp.from_torch(face, dtype=wp.int32)])
+
+        def launch(lo: int, hi: int) -> None:
+            points = wp.from_torch(points32[lo:hi], dtype=wp.vec3)
+            owner = wp.from_torch(body[lo:hi], dtype=wp.int32)
+            out_face = wp.from_torch(face[lo:hi], dtype=wp.int32)
+            if with_wn:
+                wp.launch(closest_winding_kernel, dim=hi - lo, device=self._wp_device,
+                          inputs=[self._mesh_ids, owner, points, max_dist, self.winding_accuracy],
+                          outputs=[out_face, wp.from_torch(inside[lo:hi], dtype=wp.int32)])
+            else:
+                wp.launch(closest_kernel, dim=hi - lo, device=self._wp_device,
+                          inputs=[self._mesh_ids, owner, points, max_dist], outputs=[out_face])
+
+        threads = self.search_threads or torch.get_num_threads()
+        chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
+        if chunks > 1:
+            bounds = np.linspace(0, n, chunks + 1).astype(int)
+            pool = _search_pool(chunks)
+            for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
+                job.result()
+        elif n:
+            launch(0, n)
         if n and int(face.min()) < 0:
             raise RuntimeError("the body BVH found no triangle for some points: every face of the body is "
                                "degenerate (zero area); check the body faces")
