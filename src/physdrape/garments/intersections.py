@@ -43,36 +43,6 @@ def _warp():
             t_out[tid] = max_t
 
     @wp.kernel(enable_backward=False)
-    def self_intersect_kernel(
-        mesh: wp.uint64,
-        points: wp.array(dtype=wp.vec3),
-        faces: wp.array(dtype=wp.int32, ndim=2),
-        hits: wp.array(dtype=wp.int32),
-    ):
-        i = wp.tid()
-        a0 = points[faces[i, 0]]
-        a1 = points[faces[i, 1]]
-        a2 = points[faces[i, 2]]
-        lo = wp.min(wp.min(a0, a1), a2)
-        hi = wp.max(wp.max(a0, a1), a2)
-        query = wp.mesh_query_aabb(mesh, lo, hi)
-        j = int(0)
-        while wp.mesh_query_aabb_next(query, j):
-            if j > i:
-                shared = int(0)
-                for r in range(3):
-                    for s in range(3):
-                        if faces[i, r] == faces[j, s]:
-                            shared = shared + 1
-                if shared == 0:
-                    b0 = points[faces[j, 0]]
-                    b1 = points[faces[j, 1]]
-                    b2 = points[faces[j, 2]]
-                    if wp.intersect_tri_tri(a0, a1, a2, b0, b1, b2) != 0:
-                        hits[i] = hits[i] + 1
-                        wp.atomic_add(hits, j, 1)
-
-    @wp.kernel(enable_backward=False)
     def self_pairs_kernel(
         mesh: wp.uint64,
         points: wp.array(dtype=wp.vec3),
@@ -105,8 +75,7 @@ def _warp():
                             pairs[k, 0] = i
                             pairs[k, 1] = j
 
-    _warp.pairs_kernel = self_pairs_kernel
-    return wp, ray_kernel, self_intersect_kernel
+    return wp, ray_kernel, self_pairs_kernel
 
 
 def _mesh(wp, verts: np.ndarray, faces: np.ndarray):
@@ -126,14 +95,7 @@ def self_intersecting_faces(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Returns:
         indices of the intersecting faces, shape (K,) int64 (empty when intersection-free).
     """
-    if len(faces) == 0:
-        return np.zeros(0, np.int64)
-    wp, _, kernel = _warp()
-    mesh = _mesh(wp, verts, faces)
-    f2 = wp.array(np.asarray(faces, np.int32), dtype=wp.int32, ndim=2, device=_DEVICE)
-    hits = wp.zeros(len(faces), dtype=wp.int32, device=_DEVICE)
-    wp.launch(kernel, dim=len(faces), inputs=[mesh.id, mesh.points, f2], outputs=[hits], device=_DEVICE)
-    return np.flatnonzero(hits.numpy() > 0).astype(np.int64)
+    return np.unique(self_intersecting_pairs(verts, faces).ravel())
 
 
 def self_intersecting_pairs(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -147,8 +109,7 @@ def self_intersecting_pairs(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     if len(faces) == 0:
         return np.zeros((0, 2), np.int64)
-    wp, _, _ = _warp()
-    kernel = _warp.pairs_kernel
+    wp, _, kernel = _warp()
     mesh = _mesh(wp, verts, faces)
     f2 = wp.array(np.asarray(faces, np.int32), dtype=wp.int32, ndim=2, device=_DEVICE)
     capacity = max(1024, 4 * len(faces))
