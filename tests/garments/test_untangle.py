@@ -13,14 +13,6 @@ SUIT = MAKEHUMAN_DIR / "female_sportsuit01" / "female_sportsuit01.mhclo"
 needs_suit = pytest.mark.skipif(not SUIT.is_file(), reason=f"MakeHuman CC0 suit not found at {SUIT}")
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_pairs_of_two_crossing_triangles():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],             # in z = 0
                   [0.2, 0.2, -0.5], [0.2, 0.2, 0.5], [0.9, 0.9, 0.0],  # pierces it
