@@ -1,5 +1,6 @@
 """Tests of the physics oracle: element Hessians (float64, against autograd), PSD projection,
-projected Newton on small draped tops (monotone energy, no vertex inside the body, convergence),
+projected Newton on small draped tops (monotone energy, no vertex or face centroid inside the
+body, convergence),
 packed batches, and the optional IPC mode (skipped without ipctk)."""
 
 from __future__ import annotations
@@ -179,6 +180,20 @@ def test_relax_penalty_top_on_body(body):
     terms = result.energy_terms
     torch.testing.assert_close(terms["total"], terms["strain"] + terms["bend"] + terms["gravity"] + terms["contact"])
     assert result.x.dtype == garment.rest.dtype and torch.isfinite(result.x).all()
+
+
+def test_relax_keeps_face_centroids_out_of_the_body(body):
+    """A coarse top (12 segments) rests on the cone with its faces' middles on the body: the chords
+    between vertices would cut ~3 mm into it, so vertex contact alone would let faces in."""
+    garment = _top(rings=6, segments=12, lift=0.008)
+    centroids_inside = []
+    result = relax(garment.rest.clone(), Cloth.build(garment), body, max_iters=150,
+                   callback=lambda rec, x: centroids_inside.append(int(body.query(x[garment.faces].mean(1)).inside.sum())))
+    assert result.converged
+    assert max(centroids_inside) == 0
+    centroid_distance = body.query(result.x[garment.faces].mean(1)).signed_distance
+    assert float(centroid_distance.min()) < 1e-3  # faces do bear on the body (the case is not vacuous)
+    assert float(body.query(result.x).signed_distance.min()) > 2e-3  # while every vertex is clear of it
 
 
 @pytest.mark.parametrize("bend, projection", [("projected", "always"), ("gauss_newton", "always")])
