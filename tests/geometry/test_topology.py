@@ -41,3 +41,30 @@ def test_components():
     labels = topology.connected_components(8, faces)
     assert len(set(labels[:4])) == 1 and len(set(labels[4:])) == 1 and labels[0] != labels[4]
     assert len(topology.non_manifold_edges(faces)) == 0
+
+
+def test_coarse_graphs_halve_the_nodes_double_the_edges_and_stay_connected():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    verts, faces = grid_sheet(33, 33, width=1.0, height=1.0)
+    edges = topology.undirected_edges(faces)
+    levels = topology.coarse_graphs(edges, len(verts), 3)
+    assert len(levels) == 3
+    nodes, length = np.arange(len(verts)), np.median(np.linalg.norm(verts[edges[:, 0]] - verts[edges[:, 1]], axis=1))
+    mesh_length = length
+    for coarse in levels:
+        assert coarse.ndim == 2 and coarse.shape[1] == 2 and (coarse[:, 0] < coarse[:, 1]).all()
+        level_nodes = np.unique(coarse)
+        assert np.isin(level_nodes, nodes).all()  # each level keeps a subset of the previous one's nodes
+        assert len(level_nodes) <= len(nodes) / 1.8
+        local = np.searchsorted(level_nodes, coarse)
+        graph = coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(level_nodes),) * 2)
+        assert connected_components(graph, directed=False)[0] == 1
+        new_length = np.median(np.linalg.norm(verts[coarse[:, 0]] - verts[coarse[:, 1]], axis=1))
+        assert 1.3 < new_length / length < 3.0
+        nodes, length = level_nodes, new_length
+    assert length > 5 * mesh_length  # three levels: an edge spans ~6 mesh edges
+    again = topology.coarse_graphs(edges, len(verts), 3)
+    assert all(np.array_equal(a, b) for a, b in zip(levels, again))
+    assert topology.coarse_graphs(edges, len(verts), 0) == []

@@ -5,7 +5,8 @@ import torch
 from drape_cases import make_input, tube
 
 from physdrape.config_io import ConfigError, from_mapping, to_mapping
-from physdrape.model import ModelConfig, PhysDrape, Variant
+from physdrape.geometry.garment import GarmentBatch
+from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.physics import Material
 from physdrape.train.loss import LossConfig, drape_loss
 
@@ -41,6 +42,42 @@ def test_gnn_is_equivariant_to_vertex_relabelling():
     out_r = model(make_input([relabelled], [0.15]))
     torch.testing.assert_close(out_r.x, out.x[perm], rtol=1e-4, atol=1e-6)
     torch.testing.assert_close(out_r.f_hat, out.f_hat[perm], rtol=1e-4, atol=1e-7)
+
+
+def _reach(model: PhysDrape, garment, source: int) -> int:
+    """How many vertices' X_init move the network's output at vertex `source`."""
+    batch = make_input([garment], [0.1])
+    x_init = batch.x_init.clone().requires_grad_(True)
+    out = model(DrapeInput(batch.garments, batch.cloth, x_init, batch.bodies, batch.body_index))
+    (grad,) = torch.autograd.grad(out.x_gnn[source].sum() + out.f_hat[source].sum(), x_init)
+    return int((grad.abs().sum(-1) > 0).sum())
+
+
+def test_coarse_levels_extend_the_networks_reach():
+    garment = tube(16, 24, 0.14)
+    reach = {}
+    for levels in (0, 3):
+        torch.manual_seed(0)
+        model = PhysDrape(ModelConfig(latent=8, blocks=2, levels=levels)).eval()
+        reach[levels] = _reach(model, garment, source=200)
+    assert reach[0] < 0.25 * garment.num_verts
+    assert reach[3] > 2 * reach[0]
+
+
+def test_packed_batch_with_coarse_levels_equals_garments_alone(two_tubes):
+    torch.manual_seed(0)
+    model = PhysDrape(ModelConfig(latent=16, blocks=2, levels=2)).eval()
+    together = model(make_input(two_tubes, [0.15, 0.13])).x
+    a, b = GarmentBatch.pack(two_tubes).split(together)
+    torch.testing.assert_close(a, model(make_input(two_tubes[:1], [0.15])).x, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(b, model(make_input(two_tubes[1:], [0.13])).x, rtol=1e-5, atol=1e-6)
+
+
+def test_zero_initialised_output_starts_at_x_init(two_tubes):
+    model = PhysDrape(ModelConfig(latent=8, blocks=1, zero_init_output=True, variant=Variant.GNN_ONLY)).eval()
+    batch = make_input(two_tubes, [0.15, 0.13])
+    out = model(batch)
+    assert torch.equal(out.x, batch.x_init) and not out.f_hat.any()
 
 
 def test_packed_batch_equals_garments_alone(two_tubes):

@@ -8,6 +8,7 @@ runs on one garment or many with the same code. Positions x are state and live e
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -184,6 +185,24 @@ class GarmentBatch:
     def dtype(self) -> torch.dtype:
         return self.rest.dtype
 
+    def multilevel_edge_index(self, levels: int) -> tuple[Tensor, Tensor]:
+        """Mesh edges plus `levels` coarse levels (`topology.coarse_graphs`), both directions.
+
+        Returns:
+            edge_index (2, E') with row 0 = sender (the mesh's `edge_index` first), and
+            level (E',) int64: 0 for mesh edges, l for an edge of coarse level l.
+        """
+        if levels < 0:
+            raise ValueError(f"levels must be ≥ 0, got {levels}")
+        index, level = [self.edge_index], [torch.zeros(self.edge_index.shape[1], dtype=torch.int64)]
+        for g, garment in enumerate(self.garments):
+            offset = int(self.vert_offsets[g])
+            for l, edges in enumerate(_coarse_graphs(garment, levels), start=1):
+                both = torch.from_numpy(topology.bidirectional_edges(edges)) + offset
+                index.append(both)
+                level.append(torch.full((both.shape[1],), l, dtype=torch.int64))
+        return torch.cat(index, dim=1), torch.cat(level)
+
     def split(self, values: Tensor) -> list[Tensor]:
         """Split per-vertex values (..., ΣV, C) into one tensor per garment."""
         sizes = (self.vert_offsets[1:] - self.vert_offsets[:-1]).tolist()
@@ -193,3 +212,18 @@ class GarmentBatch:
         """The same batch with floating tensors in `dtype`."""
         changes = {f.name: getattr(self, f.name).to(dtype) for f in fields(self) if f.name in ("rest", "rest_inv", "rest_area")}
         return replace(self, garments=tuple(g.to(dtype) for g in self.garments), **changes)
+
+
+_COARSE_CACHE: dict[tuple[bytes, int], list[np.ndarray]] = {}
+_COARSE_CACHE_SIZE = 4096
+
+
+def _coarse_graphs(garment: Garment, levels: int) -> list[np.ndarray]:
+    """`topology.coarse_graphs` of a garment's edges, cached by topology (a few ms per garment)."""
+    edges = garment.edges.numpy()
+    key = (hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii"), levels)
+    if key not in _COARSE_CACHE:
+        if len(_COARSE_CACHE) >= _COARSE_CACHE_SIZE:
+            _COARSE_CACHE.clear()
+        _COARSE_CACHE[key] = topology.coarse_graphs(edges, garment.num_verts, levels)
+    return _COARSE_CACHE[key]

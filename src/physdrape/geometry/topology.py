@@ -129,3 +129,54 @@ def drop_unused_vertices(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarr
     remap = np.full(len(verts), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     return verts[used], remap[faces]
+
+
+def coarse_graphs(edges: np.ndarray, num_verts: int, levels: int) -> list[np.ndarray]:
+    """A hierarchy of ever coarser graphs over subsets of a mesh's vertices (HOOD-style).
+
+    Level l + 1 keeps a greedy maximal independent set of level l's nodes (so its nodes are about
+    two level-l edges apart) and joins two kept nodes when their cells (the level-l nodes nearest
+    to them by hops) touch. Each level roughly doubles the length of an edge, so L message-passing
+    blocks over all levels reach about 2^levels times further than over the mesh edges alone.
+    Deterministic: it depends on the topology and vertex order only.
+
+    Args:
+        edges: undirected mesh edges (E, 2) of vertex ids < num_verts (level 0).
+        levels: number of coarse levels to build (0 gives an empty list).
+
+    Returns:
+        one array per coarse level 1 … levels of undirected edges (E_l, 2) in the mesh's vertex ids,
+        i < j; a level of a single node per connected component has no edges (and ends the list).
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    nodes = np.unique(edges) if len(edges) else np.zeros(0, dtype=np.int64)
+    out: list[np.ndarray] = []
+    for _ in range(levels):
+        if len(edges) == 0:
+            break
+        local = np.full(num_verts, -1, dtype=np.int64)
+        local[nodes] = np.arange(len(nodes))
+        a, b = local[edges[:, 0]], local[edges[:, 1]]
+        n = len(nodes)
+        adj = csr_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
+        indptr, indices = adj.indptr, adj.indices
+        blocked = np.zeros(n, dtype=bool)
+        centres = []
+        for i in range(n):
+            if not blocked[i]:
+                centres.append(i)
+                blocked[indices[indptr[i]:indptr[i + 1]]] = True
+        centres = np.asarray(centres, dtype=np.int64)
+        _, _, cell = dijkstra(adj, unweighted=True, indices=centres, min_only=True, return_predecessors=True)
+        ca, cb = cell[a], cell[b]
+        cross = ca != cb
+        pairs = np.stack([np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])], axis=1)
+        pairs = np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+        nodes = nodes[centres]
+        edges = nodes[np.searchsorted(centres, pairs)] if len(pairs) else pairs
+        edges = np.sort(edges, axis=1)
+        out.append(edges)
+    return out

@@ -29,6 +29,9 @@ class ModelConfig:
     """Architecture and module settings of `PhysDrape`.
 
     latent / blocks / mlp_layers: GNN width D, depth L and Linear layers per MLP (paper: 128, 16, 2).
+    levels: coarse graph levels added to the mesh edges for message passing (0: the paper's mesh
+    graph; each level doubles an edge's reach, see `topology.coarse_graphs`).
+    zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
     eta / gamma: initial solver compliance [m/N] and decay; max_step: the solver's per-vertex
     step clip [m] (stability guard, see `StretchingSolver`). delta: initial handler push factor.
@@ -40,6 +43,8 @@ class ModelConfig:
     latent: int = 64
     blocks: int = 8
     mlp_layers: int = 2
+    levels: int = 0
+    zero_init_output: bool = False
     train_steps: int = 3
     eval_steps: int = 15
     eta: float = 1e-3
@@ -56,6 +61,8 @@ class ModelConfig:
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")
+        if self.levels < 0:
+            raise ValueError(f"ModelConfig.levels must be ≥ 0, got {self.levels}")
 
     @staticmethod
     def paper() -> "ModelConfig":

@@ -27,11 +27,21 @@ def node_features(x: Tensor, garments: GarmentBatch, cloth: Cloth, signed_distan
     return torch.cat([normals, signed_distance[:, None], force, torch.log(material.to(x.dtype).clamp_min(MATERIAL_FLOOR))], dim=-1)
 
 
-def edge_features(x: Tensor, garments: GarmentBatch) -> Tensor:
-    """e_ij = [x_ij, |x_ij|, x⁰_ij, l⁰_ij] on the bidirectional edges (edge_index), (2ΣE, 8)."""
-    sender, receiver = garments.edge_index
+def edge_features(x: Tensor, garments: GarmentBatch, edge_index: Tensor | None = None, level: Tensor | None = None,
+                  levels: int = 0) -> Tensor:
+    """e_ij = [x_ij, |x_ij|, x⁰_ij, l⁰_ij] per directed edge, (E', 8), plus a one-hot of the edge's
+    level (levels + 1 columns) when `levels` > 0.
+
+    Args:
+        edge_index: (2, E') row 0 = sender; default the mesh's bidirectional edges.
+        level: (E',) level of each edge (0 = mesh edge); needed when levels > 0.
+    """
+    sender, receiver = garments.edge_index if edge_index is None else edge_index
     current = x[receiver] - x[sender]
     rest = (garments.rest[receiver] - garments.rest[sender]).to(x.dtype)
-    return torch.cat(
-        [current, current.norm(dim=-1, keepdim=True), rest, rest.norm(dim=-1, keepdim=True)], dim=-1
-    )
+    parts = [current, current.norm(dim=-1, keepdim=True), rest, rest.norm(dim=-1, keepdim=True)]
+    if levels:
+        if level is None:
+            raise ValueError("edge_features with levels > 0 needs the level of every edge")
+        parts.append(torch.nn.functional.one_hot(level, levels + 1).to(x.dtype))
+    return torch.cat(parts, dim=-1)

@@ -41,15 +41,20 @@ class EncodeProcessDecode(nn.Module):
     Args:
         node_in, edge_in: raw (normalised) feature widths; out: decoder output width.
         latent: D; blocks: L; mlp_layers: Linear layers per MLP (the paper: 2).
+        zero_init_output: start the decoder's last layer at zero (an untrained network outputs 0).
     Forward: nodes (N, node_in), edges (E, edge_in), edge_index (2, E) row 0 = sender → (N, out).
     """
 
-    def __init__(self, node_in: int, edge_in: int, out: int, *, latent: int, blocks: int, mlp_layers: int = 2) -> None:
+    def __init__(self, node_in: int, edge_in: int, out: int, *, latent: int, blocks: int, mlp_layers: int = 2,
+                 zero_init_output: bool = False) -> None:
         super().__init__()
         self.node_encoder = mlp(node_in, latent, latent, layers=mlp_layers)
         self.edge_encoder = mlp(edge_in, latent, latent, layers=mlp_layers)
         self.blocks = nn.ModuleList(ProcessorBlock(latent, mlp_layers=mlp_layers) for _ in range(blocks))
         self.decoder = mlp(latent, latent, out, layers=mlp_layers, layer_norm=False)
+        if zero_init_output:  # the untrained network outputs 0: training starts from its input state
+            nn.init.zeros_(self.decoder[-1].weight)
+            nn.init.zeros_(self.decoder[-1].bias)
 
     def forward(self, nodes: Tensor, edges: Tensor, edge_index: Tensor) -> Tensor:
         h, e = self.node_encoder(nodes), self.edge_encoder(edges)

@@ -52,24 +52,33 @@ class PhysDrape(nn.Module):
         super().__init__()
         self.config = config
         self.node_normalizer = Normalizer(NODE_FEATURES, max_accumulations=config.normalizer_accumulations)
-        self.edge_normalizer = Normalizer(EDGE_FEATURES, max_accumulations=config.normalizer_accumulations)
+        edge_in = EDGE_FEATURES + (config.levels + 1 if config.levels else 0)
+        self.edge_normalizer = Normalizer(edge_in, max_accumulations=config.normalizer_accumulations)
         self.gnn = EncodeProcessDecode(
-            NODE_FEATURES, EDGE_FEATURES, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers
+            NODE_FEATURES, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
+            zero_init_output=config.zero_init_output,
         )
         self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma, max_step=config.max_step)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta)
 
-    def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor]:
-        """Raw (un-normalised) node and edge features at X_init, in the network's dtype."""
+    def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, Tensor]:
+        """Raw (un-normalised) node and edge features at X_init, in the network's dtype, and the
+        edge_index they live on (the mesh edges, plus `config.levels` coarse levels)."""
         query = batch.bodies.query(batch.x_init, body_index=batch.body_index)
         net_dtype = self.gnn.decoder[0].weight.dtype
         nodes = node_features(batch.x_init, batch.garments, batch.cloth, query.signed_distance).to(net_dtype)
-        return nodes, edge_features(batch.x_init, batch.garments).to(net_dtype)
+        levels = self.config.levels
+        if levels:
+            edge_index, level = batch.garments.multilevel_edge_index(levels)
+        else:
+            edge_index, level = batch.garments.edge_index, None
+        edges = edge_features(batch.x_init, batch.garments, edge_index, level, levels)
+        return nodes, edges.to(net_dtype), edge_index
 
     @torch.no_grad()
     def accumulate_statistics(self, batch: DrapeInput) -> None:
         """One batch of the normalisers' statistics-only warm-up."""
-        nodes, edges = self.graph_inputs(batch)
+        nodes, edges, _ = self.graph_inputs(batch)
         self.node_normalizer.accumulate(nodes)
         self.edge_normalizer.accumulate(edges)
 
@@ -77,8 +86,8 @@ class PhysDrape(nn.Module):
         """Drape a batch. steps: solver steps T (default: train_steps in training, else eval_steps)."""
         cfg = self.config
         x_init = batch.x_init
-        nodes, edges = self.graph_inputs(batch)
-        out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), batch.garments.edge_index)
+        nodes, edges, edge_index = self.graph_inputs(batch)
+        out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), edge_index)
         out = out.to(x_init.dtype)
         delta_x = cfg.displacement_scale * out[:, :3]
         # f̂ in units of each vertex's weight: the support a vertex needs is of that order.
