@@ -30,7 +30,8 @@ class ModelConfig:
 
     latent / blocks / mlp_layers: GNN width D, depth L and Linear layers per MLP (paper: 128, 16, 2).
     levels: coarse graph levels added to the mesh edges for message passing (0: the paper's mesh
-    graph; each level doubles an edge's reach, see `topology.coarse_graphs`).
+    graph; each level doubles an edge's reach, see `topology.coarse_graphs`; the coarse nodes are
+    picked in vertex order, so a model with levels is not exactly equivariant to relabelling).
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
     eta / gamma: initial solver compliance [m/N] and decay; max_step: the solver's per-vertex
