@@ -7,8 +7,8 @@ from drape_cases import make_input, tube
 from physdrape.config_io import ConfigError, from_mapping, to_mapping
 from physdrape.geometry.garment import GarmentBatch
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
-from physdrape.physics import Material
-from physdrape.train.loss import LossConfig, drape_loss
+from physdrape.physics import Cloth, Material
+from physdrape.train.loss import LossConfig, drape_energies, drape_loss
 
 SMALL = ModelConfig(latent=16, blocks=2)
 
@@ -128,3 +128,25 @@ def test_config_is_strict():
     with pytest.raises(ConfigError, match="variant: 'half' is not one of"):
         from_mapping(ModelConfig, {"variant": "half"})
     assert from_mapping(ModelConfig, to_mapping(ModelConfig.paper())) == ModelConfig.paper()
+
+
+def test_per_garment_scaled_loss_divides_each_garment_by_its_start(two_tubes):
+    batch = make_input(two_tubes, [0.15, 0.13], dtype=torch.float64)
+    batch = DrapeInput(batch.garments.to(torch.float64), Cloth.build(batch.garments.to(torch.float64)),
+                       batch.x_init.double(), batch.bodies, batch.body_index)
+    x_init = batch.x_init * 1.05
+    x = batch.x_init * 1.02
+    plain, terms = drape_loss(x, batch.cloth, batch.bodies, batch.body_index, LossConfig())
+    scaled, terms_s = drape_loss(x, batch.cloth, batch.bodies, batch.body_index,
+                                 LossConfig(per_garment_scale="initial"), x_init)
+    energy = drape_energies(x, batch.cloth, batch.bodies, batch.body_index, LossConfig())
+    start = drape_energies(x_init, batch.cloth, batch.bodies, batch.body_index, LossConfig())
+    weight = batch.cloth.sum_per_garment(batch.cloth.mass, batch.cloth.vert_garment) * 9.81
+    scale = start["strain"] + start["bend"] + start["collision"] + 0.01 * weight
+    torch.testing.assert_close(scaled, (sum(energy.values()) / scale).mean())
+    torch.testing.assert_close(plain, sum(energy.values()).mean())
+    assert all(torch.equal(terms[k], terms_s[k]) for k in terms)  # logged terms stay in joules
+    with pytest.raises(ValueError, match="x_init"):
+        drape_loss(x, batch.cloth, batch.bodies, batch.body_index, LossConfig(per_garment_scale="initial"))
+    with pytest.raises(ValueError, match="per_garment_scale"):
+        LossConfig(per_garment_scale="relative")

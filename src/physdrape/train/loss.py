@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import torch
 from torch import Tensor
 
 from physdrape.geometry.proximity import BodySurface
@@ -16,10 +17,21 @@ from physdrape.physics.strain import strain_energy
 
 @dataclass(frozen=True)
 class LossConfig:
-    """collision_stiffness: k_c [J/m³]; margin: ε [m] of E_coll (DESIGN.md Sec. 2)."""
+    """collision_stiffness: k_c [J/m³]; margin: ε [m] of E_coll (DESIGN.md Sec. 2).
+
+    per_garment_scale: "none" (the paper: energies in J, averaged over the batch) or "initial":
+    each garment's energy is divided by a constant (no gradient) of its own, its elastic energy
+    E_strain + E_bend + E_coll at X_init plus its weight × 1 cm, so that a garment starting
+    hundreds of joules from equilibrium (an extreme shape or pose) does not steer the whole batch.
+    """
 
     collision_stiffness: float = DEFAULT_STIFFNESS
     margin: float = DEFAULT_MARGIN
+    per_garment_scale: str = "none"
+
+    def __post_init__(self) -> None:
+        if self.per_garment_scale not in ("none", "initial"):
+            raise ValueError(f"LossConfig.per_garment_scale must be 'none' or 'initial', got {self.per_garment_scale!r}")
 
 
 def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig) -> dict[str, Tensor]:
@@ -34,11 +46,21 @@ def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Ten
     }
 
 
-def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig) -> tuple[Tensor, dict[str, Tensor]]:
-    """The training loss: the sum of the terms per garment, averaged over the batch.
+def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig,
+               x_init: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
+    """The training loss: the sum of the terms per garment (divided by the garment's scale when
+    `config.per_garment_scale` is "initial", which needs x_init), averaged over the batch.
 
-    Returns the scalar loss and the batch-mean of each term (detached) for logging.
+    Returns the scalar loss and the batch-mean of each term [J] (detached) for logging.
     """
     terms = drape_energies(x, cloth, bodies, body_index, config)
-    loss = sum(terms.values()).mean()
-    return loss, {name: value.detach().mean() for name, value in terms.items()}
+    total = sum(terms.values())
+    if config.per_garment_scale == "initial":
+        if x_init is None:
+            raise ValueError("per_garment_scale='initial' needs x_init")
+        with torch.no_grad():
+            start = drape_energies(x_init, cloth, bodies, body_index, config)
+            weight = cloth.sum_per_garment(cloth.mass, cloth.vert_garment) * cloth.gravity.norm(dim=-1)
+            scale = start["strain"] + start["bend"] + start["collision"] + 0.01 * weight
+        total = total / scale
+    return total.mean(), {name: value.detach().mean() for name, value in terms.items()}

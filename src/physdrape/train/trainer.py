@@ -161,7 +161,7 @@ class Trainer:
         model.train()
         batch = self._local_batch()
         out = model(batch)
-        loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss)
+        loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)
