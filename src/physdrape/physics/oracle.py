@@ -627,6 +627,7 @@ def relax(
     reason, converged = "max_iters", False
     change_g = torch.full((G,), math.inf, dtype=dt)
     reg = regularization
+    exact_wait, exact_backoff = 0, 1  # iterations to skip the exact-Hessian attempt; next skip length
     for it in range(1, max_iters + 1):
         if bool((res_g < tol).all()) and bool((change_g < energy_tol).all()):
             reason, converged = "converged", True
@@ -637,12 +638,16 @@ def relax(
         # -- Hessian blocks, assembly, factorisation + solve. With projection "auto", the exact
         # Hessian is tried first (quadratic convergence near a minimum, where per-element
         # projection over-stiffens compressed/buckled regions); when it is not positive definite
-        # the factorisation says so and the per-element PSD projection is used.
+        # the factorisation says so and the per-element PSD projection is used. After a failed
+        # exact attempt the next 1, 2, 4, … iterations skip it (reset on success): every failed
+        # CHOLMOD factorisation costs a factorisation's time and leaks its memory inside
+        # cholespy (measured ~0.27 GiB per 15 iterations on a 3k-vertex top without the backoff).
         t_h = t_a = t_s = 0.0
         rhs = -grad.numpy().reshape(-1)
         p = None
         projected = True
-        attempts = [False, True] if try_exact else [True]
+        attempts = [False, True] if try_exact and exact_wait == 0 else [True]
+        exact_wait = max(exact_wait - 1, 0)
         for project in attempts:
             t0 = time.perf_counter()
             hs = strain_hessian(x, cloth64, project=project)
@@ -677,9 +682,11 @@ def relax(
                         p = _solve(lower, rhs, solver)
                     reg_used, projected = reg, False
                     t_s += time.perf_counter() - t2
+                    exact_backoff = 1
                     break
                 except (ValueError, RuntimeError):
                     t_s += time.perf_counter() - t2
+                    exact_wait, exact_backoff = exact_backoff, 2 * exact_backoff
                     continue
             # projected: raise the regularisation until the factorisation succeeds
             while True:
