@@ -196,6 +196,32 @@ def test_relax_keeps_face_centroids_out_of_the_body(body):
     assert float(body.query(result.x).signed_distance.min()) > 2e-3  # while every vertex is clear of it
 
 
+def test_penalty_contact_gradient_matches_finite_differences(body):
+    """The vertex + centroid penalty's gradient against central differences of its energy (float64)."""
+    from physdrape.physics.oracle import _PenaltyContact
+
+    garment = _top(rings=6, segments=12, lift=0.0005)  # the shoulder ring inside the 2 mm margin
+    x = _random_state(garment, 3e-4, seed=2)
+    vert_body = torch.zeros(garment.num_verts, dtype=torch.int64)
+    pen = _PenaltyContact(body, vert_body, garment.faces, stiffness=2.5e3, margin=2e-3)
+
+    def energy(xt):
+        e_v, e_f, _ = pen.trial(xt)
+        return float(e_v.sum() + e_f.sum())
+
+    st = pen.state(x)
+    assert st["face_depth"].gt(0).sum() > 5 and st["depth"].gt(0).sum() > 5  # both kinds of sample in contact
+    touched = torch.nonzero(st["grad"].norm(dim=-1) > 0).flatten()[:12]
+    h = 1e-7
+    for i in touched.tolist():
+        for k in range(3):
+            xp, xm = x.clone(), x.clone()
+            xp[i, k] += h
+            xm[i, k] -= h
+            fd = (energy(xp) - energy(xm)) / (2 * h)
+            assert abs(fd - float(st["grad"][i, k])) <= 1e-4 * float(st["grad"][i].norm()) + 1e-12, (i, k)
+
+
 @pytest.mark.parametrize("bend, projection", [("projected", "always"), ("gauss_newton", "always")])
 def test_relax_other_hessian_modes_reach_the_same_drape(body, bend, projection):
     garment = _top()

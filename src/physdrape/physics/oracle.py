@@ -126,7 +126,8 @@ class IterationRecord:
     |ΔE_g| / |E_g| for this iteration; residual: max over garments and over vertices not in
     contact of ‖F‖ / (m_i g); residual_all: the same over all vertices; step: min over garments of
     the accepted step length; num_contact: vertices in contact (themselves or through a face's
-    centroid); num_inside: vertices and face centroids inside the body (BodySurface's inside test); regularization: the diagonal shift used, relative to the
+    centroid); num_inside: vertices and face centroids inside the body (BodySurface's inside
+    test); regularization: the diagonal shift used, relative to the
     mean diagonal of the Hessian; projected: whether the element Hessians were projected to PSD
     (False: the exact Hessian was positive definite); t_hessian, t_assembly, t_solve, t_line_search: seconds spent
     in each phase; wall: seconds since the start of `relax`.
@@ -309,7 +310,6 @@ class _PenaltyContact:
         self.bodies, self.vert_body, self.faces = bodies, vert_body, faces
         self.face_body = vert_body[faces[:, 0]]
         self.stiffness, self.margin = stiffness, margin
-        self.num_verts = vert_body.shape[0]
 
     def _query(self, x: Tensor):
         """Queries of the vertices and of the centroids: (vertex query, centroid query)."""
