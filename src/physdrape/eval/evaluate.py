@@ -46,13 +46,8 @@ import torch
 from physdrape.eval.metrics import drape_metrics
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.physics import Cloth, Material
-from physdrape.physics.collision import (
-    DEFAULT_MARGIN,
-    DEFAULT_STIFFNESS,
-    collision_energy,
-)
 from physdrape.physics.forces import energy_terms
-from physdrape.physics.oracle import silenced
+from physdrape.physics.oracle import penalty_contact_energy, silenced
 
 __all__ = [
     "ABLATION_ROWS",
@@ -288,13 +283,7 @@ def total_energy(x: torch.Tensor, batch: DrapeInput) -> torch.Tensor:
     (penalty contact at vertices and face centroids with its default stiffness and margin; the
     batch's materials)."""
     terms = energy_terms(x, batch.cloth)
-    faces = batch.garments.faces
-    d = batch.bodies.query(x, body_index=batch.body_index).signed_distance
-    d_centroid = batch.bodies.query(x[faces].mean(1), body_index=batch.body_index[faces[:, 0]]).signed_distance
-    cloth = batch.cloth
-    contact = (cloth.sum_per_garment(collision_energy(d, stiffness=DEFAULT_STIFFNESS, margin=DEFAULT_MARGIN), cloth.vert_garment)
-               + cloth.sum_per_garment(collision_energy(d_centroid, stiffness=DEFAULT_STIFFNESS, margin=DEFAULT_MARGIN),
-                                       cloth.face_garment))
+    contact = penalty_contact_energy(x, batch.cloth, batch.bodies, batch.body_index)
     return terms["strain"] + terms["bend"] + terms["gravity"] + contact
 
 

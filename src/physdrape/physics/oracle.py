@@ -352,6 +352,14 @@ class _PenaltyContact:
         return k * self._depth(qv, x.dtype)**3, k * self._depth(qc, x.dtype)**3, torch.cat([qv.inside, qc.inside])
 
 
+def penalty_contact_energy(x: Tensor, cloth: Cloth, bodies, vert_body: Tensor, *,
+                           stiffness: float = DEFAULT_STIFFNESS, margin: float = DEFAULT_MARGIN) -> Tensor:
+    """The penalty contact energy `relax` minimises, per garment [J] (G,): k_c Σ ReLU(ε − d)³ over
+    the vertices and the face centroids. x (ΣV, 3) [m]; vert_body: body of each vertex (ΣV,)."""
+    e_v, e_f, _ = _PenaltyContact(bodies, vert_body, cloth.faces, stiffness=stiffness, margin=margin).trial(x)
+    return cloth.sum_per_garment(e_v, cloth.vert_garment) + cloth.sum_per_garment(e_f, cloth.face_garment)
+
+
 def _import_ipctk():
     try:
         import ipctk
