@@ -706,12 +706,16 @@ class Draper:
         """The body's skinning transforms blended per garment vertex (state of batch 1), (V, 3, 4) float64."""
         return self.transfer(template, rig).blended_transforms(state)[0].to(torch.float64)
 
-    def _warm_init(self, template: _Template, rig: str, x_prev: Tensor, a_prev: Tensor, a_now: Tensor) -> Tensor:
-        """X_init(t) = T(t) T(t-1)^-1 X*(t-1) per garment vertex, then edge-stretch limited like
-        the skinned X_init (float64, (V, 3))."""
+    def _warm_init(self, template: _Template, rig: str, x_prev: Tensor, a_prev: Tensor, a_now: Tensor,
+                   state) -> Tensor:
+        """X_init(t) = T(t) T(t-1)^-1 X*(t-1) per garment vertex, then edge-stretch limited with
+        the body (`state`, batch 1) held out, like the skinned X_init (float64, (V, 3))."""
         x_rest = torch.linalg.solve(a_prev[..., :3], (x_prev - a_prev[..., 3]).unsqueeze(-1))
         x = (a_now[..., :3] @ x_rest).squeeze(-1) + a_now[..., 3]
-        return self.transfer(template, rig).limit_stretch(x)
+        from physdrape.geometry.proximity import BodySurface
+
+        body = BodySurface(state.verts[0].detach().to(x.dtype)[None], state.faces)
+        return self.transfer(template, rig).limit_stretch(x, body=body)
 
     @staticmethod
     def _refuse_penetrating_poses(state, body, labels: list[str], tolerance: int) -> None:
@@ -767,7 +771,7 @@ class Draper:
                 x_prev, a_prev = warm[k]
                 if a_now is None:
                     a_now = self._blended_affine(template, rig, single)
-                x_init.append(self._warm_init(template, rig, x_prev, a_prev, a_now).to(self.dtype))
+                x_init.append(self._warm_init(template, rig, x_prev, a_prev, a_now, single).to(self.dtype))
             else:
                 x_init.append(self.transfer(template, rig).apply(single)[0].to(self.dtype))
             garments.append(self._cloth_garment(template))

@@ -75,3 +75,20 @@ def test_ship_exports_model_and_training_record(tmp_path):
     assert record["step"] == 8 and record["seed"] == 3
     weights, config = ckpt.read_checkpoint(tmp_path / "model")
     assert config["exported_from"] == "step-00000008" and "optim.0.exp_avg" not in weights
+
+
+def test_init_from_starts_a_fresh_run_from_another_checkpoint(tmp_path):
+    from dataclasses import replace
+
+    trainer(tmp_path / "base").run()
+    base, _ = ckpt.read_checkpoint(tmp_path / "base")
+    tuned = trainer(tmp_path / "tuned", replace(TINY, optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base"))))
+    tuned.warm_up_normalizers = lambda: pytest.fail("init_from must keep the checkpoint's input statistics")
+    tuned.init_weights(tmp_path / "base")
+    for name, value in tuned.model.state_dict().items():
+        assert torch.equal(value, base[name]), name
+    history = tuned.run()
+    assert tuned.step == 1 and len(history) == 1
+    wider = replace(TINY, model=replace(TINY.model, latent=8), optim=replace(TINY.optim, init_from=str(tmp_path / "base")))
+    with pytest.raises(ckpt.CheckpointError, match="does not fit this run's model"):
+        trainer(tmp_path / "wider", wider).run()

@@ -37,7 +37,10 @@ class OptimConfig:
     """steps: optimiser steps in all; batch_size: global batch (garments per step, all ranks);
     lr: Adam's initial learning rate (paper 5e-5), decayed exponentially to lr·lr_final_ratio;
     grad_clip: max global gradient norm; seed: of the sample stream and the initial weights;
-    checkpoint_every / log_every: in steps; keep_checkpoints: newest checkpoints kept."""
+    checkpoint_every / log_every: in steps; keep_checkpoints: newest checkpoints kept;
+    init_from: a checkpoint (directory with model.safetensors + config.json, or a run directory)
+    whose weights and input statistics start a fresh run instead of random weights and the
+    statistics warm-up (fine-tuning); "" = none. Ignored on --resume."""
 
     steps: int = 1000
     batch_size: int = 4
@@ -48,6 +51,7 @@ class OptimConfig:
     checkpoint_every: int = 100
     log_every: int = 10
     keep_checkpoints: int = 3
+    init_from: str = ""
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or not self.lr > 0 or not 0 < self.lr_final_ratio <= 1:
@@ -134,6 +138,18 @@ class Trainer:
         torch.set_rng_state(tensors["rng.torch"])
         self.step = int(meta["step"])
 
+    def init_weights(self, checkpoint: str | os.PathLike) -> None:
+        """Start from another checkpoint's model weights (input statistics included)."""
+        weights, config = ckpt.read_checkpoint(checkpoint)
+        try:
+            self.model.load_state_dict({k: v.to(self.model.state_dict()[k].dtype) if k in self.model.state_dict() else v
+                                        for k, v in weights.items()})
+        except RuntimeError as exc:
+            raise ckpt.CheckpointError(
+                f"optim.init_from {checkpoint} does not fit this run's model (its model section: "
+                f"{config.get('train', {}).get('model')}); use the same latent, blocks, "
+                f"levels and variant: {exc}") from exc
+
     def _truncate_metrics(self) -> None:
         """Drop metric lines logged after the checkpoint we resume from (they will be redone)."""
         path = self.run_dir / "metrics.jsonl"
@@ -181,6 +197,8 @@ class Trainer:
         if latest is not None:
             self.load(latest)
             self._truncate_metrics()
+        elif self.step == 0 and self.config.optim.init_from:
+            self.init_weights(self.config.optim.init_from)
         elif self.step == 0:
             self.warm_up_normalizers()
         writer = None
