@@ -74,23 +74,32 @@ def limit_edge_stretch(
     if edges.ndim != 2 or edges.shape[1] != 2 or rest_lengths.shape[-1:] != edges.shape[:1]:
         raise ValueError(f"edges must be (E, 2) and rest_lengths (..., E), got {tuple(edges.shape)} and "
                          f"{tuple(rest_lengths.shape)}")
-    i, j = edges[:, 0], edges[:, 1]
     if requery_every < 1:
         raise ValueError(f"requery_every must be >= 1, got {requery_every}")
     if not 0.0 <= momentum < 1.0:
         raise ValueError(f"momentum must be in [0, 1), got {momentum}")
-    bound = max_stretch * rest_lengths.to(x.dtype)
+    # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies: a
+    # 2-D index_add is ~10x faster on CPU than one along dim -2 of a 3-D tensor.
+    shape, num_verts = x.shape, x.shape[-2]
+    flat = x.reshape(-1, 3)
+    copies = flat.shape[0] // num_verts
+    offsets = (torch.arange(copies, device=x.device) * num_verts)[:, None]
+    i = (edges[:, 0][None] + offsets).reshape(-1)
+    j = (edges[:, 1][None] + offsets).reshape(-1)
+    ends = torch.cat([i, j])
+    bound = (max_stretch * rest_lengths.to(x.dtype)).expand(*shape[:-2], edges.shape[0]).reshape(-1)
     planes, floor = None, None
-    velocity = torch.zeros_like(x)
+    velocity = torch.zeros_like(flat)
     previous = None
+    x = flat
     for sweep in range(iterations):
         if body is not None and sweep % requery_every == 0:
             with torch.no_grad():
-                query = body.query(x.detach())
-            planes = query.closest, query.normal
+                query = body.query(x.detach().reshape(shape))
+            planes = query.closest.reshape(-1, 3), query.normal.reshape(-1, 3)
             if floor is None:  # never deeper than at the start, never into the margin
-                floor = query.signed_distance.clamp_max(margin)
-        d = x[..., j, :] - x[..., i, :]
+                floor = query.signed_distance.reshape(-1).clamp_max(margin)
+        d = x[j] - x[i]
         length = d.norm(dim=-1)
         excess = (length - bound).clamp_min(0.0)
         inside = planes is not None and bool((_depth(x, planes, floor) > 1e-2 * margin).any())
@@ -103,15 +112,14 @@ def limit_edge_stretch(
         active = (excess > 0).to(x.dtype)
         # Each end moves half the excess along the edge; corrections are averaged per vertex.
         half = (0.5 * excess / length.clamp_min(1e-12)).unsqueeze(-1) * d
-        shift = torch.zeros_like(x).index_add(-2, i, half).index_add(-2, j, -half)
-        count = torch.zeros(x.shape[:-1], dtype=x.dtype, device=x.device)
-        count = count.index_add(-1, i, active).index_add(-1, j, active)
+        shift = torch.zeros_like(x).index_add_(0, ends, torch.cat([half, -half]))
+        count = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device).index_add_(0, ends, torch.cat([active, active]))
         x_new = x + relaxation * shift / count.clamp_min(1.0).unsqueeze(-1) + momentum * velocity
         if planes is not None:
             x_new = x_new + _depth(x_new, planes, floor).unsqueeze(-1) * planes[1]
         velocity = x_new - x
         x = x_new
-    return x
+    return x.reshape(shape)
 
 
 def _depth(x: Tensor, planes: tuple[Tensor, Tensor], floor: Tensor) -> Tensor:
