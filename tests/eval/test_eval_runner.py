@@ -67,8 +67,10 @@ def test_both_tables_have_all_rows_with_finite_numbers(results):
         for name in ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "energy_total", "wall_s",
                      "strain_ratio", "bend_ratio"):
             assert math.isfinite(summary[name]), (key, name)
+    for start in ("x_init", "skinned"):  # context rows: PhysDrape's start and the oracle's
+        assert math.isfinite(data[start]["summary"]["strain"]), start
     md = render_markdown(results)
-    assert "## Table 1" in md and "## Table 2" in md
+    assert "## Table 1" in md and "## Table 2" in md and "Skinned (the oracle's start" in md
     for spec in MAIN_ROWS + ABLATION_ROWS:
         assert f"| {spec.label}" in md, spec.label
     assert "| Oracle (" in md and "| X_init" in md
