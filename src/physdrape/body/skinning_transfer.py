@@ -106,7 +106,8 @@ class SkinningTransfer:
     everywhere (test bodies: median principal stretch 1.11-1.20, E_strain 0.94 J mean), while
     the static equilibrium lets it ride up and hug the body instead (oracle: median 1.05,
     0.048 J). 60 momentum sweeps pulling every edge back to 1.02 x rest, with the body held out,
-    bring X_init to 0.18 J mean (B2G 0.012 %) in ~60 ms for a 2-3k-vertex garment.
+    bring X_init to 0.18 J mean (B2G 0.019 %) in ~0.1 s for a 2-3k-vertex garment
+    (results/eval.md).
     """
 
     weights: Tensor

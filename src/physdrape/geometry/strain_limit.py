@@ -10,8 +10,8 @@ its skinned shape. Batched over leading dimensions, differentiable (plain torch 
 With a body, each sweep also pushes vertices closer than ``margin`` back out to it along the
 body normal (the closest-point planes are re-queried every few sweeps), so a tight bound can pull
 a garment onto a larger body without pulling it into it: a garment skinned onto a taller or wider
-body than it was made for is stretched by the body's own growth (median edge stretch 1.13-1.19
-on the test bodies), which a static drape does not need where the garment can ride up instead.
+body than it was made for is stretched by the body's own growth (median principal stretch
+1.11-1.20 on the test bodies), which a static drape does not need where the garment can ride up.
 """
 
 from __future__ import annotations
