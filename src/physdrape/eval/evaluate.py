@@ -36,10 +36,10 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from typing import NamedTuple
 from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch

@@ -141,9 +141,9 @@ class Trainer:
     def init_weights(self, checkpoint: str | os.PathLike) -> None:
         """Start from another checkpoint's model weights (input statistics included)."""
         weights, config = ckpt.read_checkpoint(checkpoint)
+        own = self.model.state_dict()
         try:
-            self.model.load_state_dict({k: v.to(self.model.state_dict()[k].dtype) if k in self.model.state_dict() else v
-                                        for k, v in weights.items()})
+            self.model.load_state_dict({k: v.to(own[k].dtype) if k in own else v for k, v in weights.items()})
         except RuntimeError as exc:
             raise ckpt.CheckpointError(
                 f"optim.init_from {checkpoint} does not fit this run's model (its model section: "
