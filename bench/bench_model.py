@@ -1,7 +1,9 @@
 """PhysDrape model benchmark: inference per garment and a training step, CPU default vs paper size.
 
 Run: .venv/bin/python bench/bench_model.py [--repeats 5] [--threads 0] [--sizes 32x4 32x4l4 128x16]
-(a size is latent x blocks, optionally l + coarse graph levels).
+    [--solvers explicit jacobi]
+(a size is latent x blocks, optionally l + coarse graph levels; a solver is the stretching
+solver's kind, `model.stretching_solver.SolverKind`).
 Garments: open tubes of ~4k vertices; bodies: icospheres of ~10k vertices (the body query cost
 is of the order of a real body's). Prints medians (ms) measured side by side in one run.
 """
@@ -43,20 +45,23 @@ def main() -> None:
     parser.add_argument("--verts", type=int, default=4000)
     parser.add_argument("--sizes", nargs="+", default=["32x4", "32x4l4", "64x8", "128x16"],
                         help="latent x blocks [l levels], e.g. 32x4l4")
+    parser.add_argument("--solvers", nargs="+", default=["explicit", "jacobi"], help="stretching solver kinds")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, float32, median of {args.repeats}")
     single, eight = problem(1, args.verts), problem(8, args.verts)
     print(f"garment: {single.garments.num_verts} vertices; body: {single.bodies.num_verts} vertices\n")
-    print("| model (D×L, levels) | params | T=3, batch 1 | T=15, batch 1 | T=3, batch 8 (per garment) | T=15, batch 8 (per garment) | train step, batch 1 | train step, batch 8 |")
+    print("| model (D×L, levels, solver) | params | T=3, batch 1 | T=15, batch 1 | T=3, batch 8 (per garment) | T=15, batch 8 (per garment) | train step, batch 1 | train step, batch 8 |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for size in args.sizes:
+    runs = [(size, solver) for size in args.sizes for solver in args.solvers]
+    for size, solver in runs:
         dims, _, levels = size.partition("l")
         latent, blocks = (int(v) for v in dims.split("x"))
         levels = int(levels or 0)
         torch.manual_seed(0)
-        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels))
+        eta = 1.0 if solver == "jacobi" else ModelConfig.eta  # each kind's own scale (configs/cpu_jacobi.yaml)
+        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, solver=solver, eta=eta))
         model.accumulate_statistics(single)
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-5)
         params = sum(p.numel() for p in model.parameters())
@@ -82,7 +87,7 @@ def main() -> None:
             median_ms(lambda: train(single), args.repeats),
             median_ms(lambda: train(eight), args.repeats),
         ]
-        print(f"| {latent}×{blocks}, {levels} | {params:,} | " + " | ".join(f"{c:.1f} ms" for c in cells) + " |")
+        print(f"| {latent}×{blocks}, {levels}, {solver} | {params:,} | " + " | ".join(f"{c:.1f} ms" for c in cells) + " |")
 
 
 if __name__ == "__main__":

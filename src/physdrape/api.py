@@ -695,7 +695,8 @@ class Draper:
         trace: list[Tensor] = []
         variant = model.config.variant
         if variant.uses_solver:
-            x = model.solver(x, inp.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None)
+            x = model.solver(x, inp.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
+                             bodies=inp.bodies, body_index=inp.body_index)
         if variant.uses_handler:
             x = model.handler(x, inp.bodies, inp.body_index)
         elif variant is Variant.POST_COL:

@@ -20,9 +20,13 @@ def trainer(run_dir, config=TINY):
     return Trainer(config, SyntheticSource(), run_dir, progress=False, tensorboard=False)
 
 
-def test_short_training_run_lowers_the_loss(tmp_path):
+@pytest.mark.parametrize("solver", ["explicit", "jacobi"])
+def test_short_training_run_lowers_the_loss(tmp_path, solver):
     # Same two tiny problems every step: the loss on them must fall.
-    config = TrainConfig(model=TINY.model, optim=OptimConfig(steps=40, batch_size=2, lr=3e-3, checkpoint_every=40, log_every=5))
+    from dataclasses import replace
+
+    model = replace(TINY.model, solver=solver, eta=1.0 if solver == "jacobi" else TINY.model.eta)
+    config = TrainConfig(model=model, optim=OptimConfig(steps=40, batch_size=2, lr=3e-3, checkpoint_every=40, log_every=5))
     t = trainer(tmp_path, config)
     fixed = t.source.make_batch([11, 12])
     t.source.make_batch = lambda seeds: fixed
@@ -92,3 +96,22 @@ def test_init_from_starts_a_fresh_run_from_another_checkpoint(tmp_path):
     wider = replace(TINY, model=replace(TINY.model, latent=8), optim=replace(TINY.optim, init_from=str(tmp_path / "base")))
     with pytest.raises(ckpt.CheckpointError, match="does not fit this run's model"):
         trainer(tmp_path / "wider", wider).run()
+
+
+def test_init_from_another_solver_kind_keeps_this_runs_eta_and_gamma(tmp_path):
+    """An explicit solver's η is a compliance in m/N, a Jacobi solver's a fraction of a step:
+    fine-tuning across kinds takes every weight but those two."""
+    from dataclasses import replace
+
+    trainer(tmp_path / "base").run()
+    base, _ = ckpt.read_checkpoint(tmp_path / "base")
+    jacobi = replace(TINY, model=replace(TINY.model, solver="jacobi", eta=1.0, gamma=0.98),
+                     optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
+    tuned = trainer(tmp_path / "tuned", jacobi)
+    fresh = {k: v.clone() for k, v in tuned.model.state_dict().items()}
+    tuned.init_weights(tmp_path / "base")
+    for name, value in tuned.model.state_dict().items():
+        if name.startswith("solver."):
+            assert torch.equal(value, fresh[name]) and not torch.equal(value, base[name]), name
+        else:
+            assert torch.equal(value, base[name]), name

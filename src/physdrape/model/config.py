@@ -5,6 +5,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from physdrape.model.stretching_solver import SolverKind
+
 
 class Variant(str, enum.Enum):
     """Which modules run (the paper's ablations are switches of one model)."""
@@ -34,8 +36,11 @@ class ModelConfig:
     picked in vertex order, so a model with levels is not exactly equivariant to relabelling).
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
-    eta / gamma: initial solver compliance [m/N] and decay; max_step: the solver's per-vertex
-    step clip [m] (stability guard, see `StretchingSolver`). delta: initial handler push factor.
+    solver: "explicit" (the paper's Eq. 10, a scalar compliance) or "jacobi" (block-Jacobi
+    preconditioned, with body contact and a descent safeguard; see `StretchingSolver`).
+    eta / gamma: initial solver compliance (explicit: [m/N]; jacobi: dimensionless, 1 = a full
+    block-Jacobi step) and decay; max_step: the solver's per-vertex step clip [m] (stability
+    guard, see `StretchingSolver`). delta: initial handler push factor.
     margin: collision margin ε [m]. displacement_scale: metres per unit of the decoder's Δx.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
@@ -48,6 +53,7 @@ class ModelConfig:
     zero_init_output: bool = False
     train_steps: int = 3
     eval_steps: int = 15
+    solver: SolverKind = SolverKind.EXPLICIT
     eta: float = 1e-3
     gamma: float = 0.9
     max_step: float = 5e-3
@@ -59,6 +65,7 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "variant", Variant(self.variant))
+        object.__setattr__(self, "solver", SolverKind(self.solver))
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")

@@ -58,7 +58,8 @@ class PhysDrape(nn.Module):
             NODE_FEATURES, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
             zero_init_output=config.zero_init_output,
         )
-        self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma, max_step=config.max_step)
+        self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma, max_step=config.max_step, kind=config.solver,
+                                       margin=config.margin)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta)
 
     def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, Tensor]:
@@ -98,7 +99,8 @@ class PhysDrape(nn.Module):
         if cfg.variant.uses_solver:
             if steps is None:
                 steps = cfg.train_steps if self.training else cfg.eval_steps
-            x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None)
+            x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
+                            bodies=batch.bodies, body_index=batch.body_index)
         if cfg.variant.uses_handler:
             x = self.handler(x, batch.bodies, batch.body_index)
         elif cfg.variant is Variant.POST_COL and not self.training:

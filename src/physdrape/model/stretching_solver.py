@@ -2,41 +2,75 @@
 
 from __future__ import annotations
 
+import enum
 import math
 
 import torch
 from torch import Tensor, nn
 
+from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.forces import internal_forces
+from physdrape.physics.collision import DEFAULT_MARGIN, DEFAULT_STIFFNESS
+from physdrape.physics.forces import internal_energy, internal_forces
+from physdrape.physics.hessians import vertex_blocks
+
+
+class SolverKind(str, enum.Enum):
+    """How the solver turns forces into steps (see `StretchingSolver`)."""
+
+    EXPLICIT = "explicit"  # the paper's Eq. 10 as written: a scalar compliance η [m/N]
+    JACOBI = "jacobi"  # block-Jacobi preconditioned: a per-vertex compliance η·K_i⁻¹, with contact
 
 
 class StretchingSolver(nn.Module):
-    """X^{t+1} = X^t + η γ^t (F_int(X^t) + f̂), t = 0 … T−1.
+    """X^{t+1} = X^t + η γ^t C_t (F(X^t) + f̂), t = 0 … T−1.
 
     f̂ is the GNN's estimate of the forces the explicit model lacks (body support, contact,
     unresolved stress; DESIGN.md Sec. 3.5), held fixed over the T steps, so the solver relaxes
-    toward F_int = −f̂. η > 0 [m/N] is exp-parametrised, γ ∈ (0, 1) sigmoid-parametrised.
+    toward F = −f̂. η > 0 is exp-parametrised, γ ∈ (0, 1) sigmoid-parametrised.
 
-    Stability guard (ours): each vertex's step η γ^t (F_int + f̂) is clipped to `max_step` [m]
-    in length, keeping its direction. Kinematic initialisations stretch edges up to ~4× where the
-    pose pulls the skin (armpits, shoulders); StVK forces there reach tens of newtons — thousands
-    of times a vertex's weight — and an unclipped explicit step would diverge. Steps of ordinary
-    size are unaffected.
+    - ``kind="explicit"`` (the paper's Eq. 10): C = I, F = F_int, η a compliance in m/N.
+    - ``kind="jacobi"``: η is dimensionless and C_t = K(X^t)⁻¹ per vertex, K_i the 3×3 diagonal
+      block of a PSD majorant of the Hessian of E_strain + E_bend + E_coll
+      (`physics.hessians.vertex_blocks`): each vertex gets the compliance of its own stiffness,
+      so one η suits a 3 mm sliver and a 2 cm face, silk and leather alike, where a scalar η
+      must be set for the stiffest element and then barely moves the rest. F = F_int + F_coll:
+      the DESIGN.md E_coll penalty (the training loss's) on closest-point planes of the body,
+      queried every `requery_every` steps, so gravity cannot pull the garment through the body
+      mid-solve. Each step is a descent step on each garment's
+      Φ = E_strain + E_bend + E_grav + E_coll − f̂·x: where Φ would rise, the garment's step is
+      halved (up to `max_halvings` times, else skipped), so the solver never raises the energy
+      it relaxes. K (a preconditioner) is not differentiated; the step is, through F, f̂, η, γ.
+
+    Stability guard (both kinds): each vertex's step is clipped to `max_step` [m] in length,
+    keeping its direction. Kinematic initialisations can stretch edges where the pose pulls the
+    skin (armpits, shoulders); StVK forces there reach tens of newtons — thousands of times a
+    vertex's weight — and an unclipped explicit step would diverge.
 
     Args:
-        eta: initial compliance η [m/N] (stable for the training materials' stiffest fabric).
+        eta: initial η ([m/N] explicit; dimensionless jacobi, 1 = a full block-Jacobi step).
         gamma: initial decay γ.
         max_step: longest move of one vertex in one step [m] (0 disables the guard).
+        kind: `SolverKind`.
+        margin, contact_stiffness: ε [m] and k_c [J/m³] of the jacobi solver's contact term.
+        requery_every: jacobi steps between body queries (the planes are held in between).
+        max_halvings: jacobi step halvings before a step that does not lower Φ is skipped.
     """
 
-    def __init__(self, *, eta: float = 1e-3, gamma: float = 0.9, max_step: float = 5e-3) -> None:
+    def __init__(self, *, eta: float = 1e-3, gamma: float = 0.9, max_step: float = 5e-3,
+                 kind: SolverKind | str = SolverKind.EXPLICIT, margin: float = DEFAULT_MARGIN,
+                 contact_stiffness: float = DEFAULT_STIFFNESS, requery_every: int = 5, max_halvings: int = 6) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
         if max_step < 0:
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
+        if requery_every < 1 or max_halvings < 0:
+            raise ValueError(f"need requery_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, {max_halvings}")
+        self.kind = SolverKind(kind)
         self.max_step = max_step
+        self.margin, self.contact_stiffness = margin, contact_stiffness
+        self.requery_every, self.max_halvings = requery_every, max_halvings
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
         self.gamma_logit = nn.Parameter(torch.tensor(math.log(gamma / (1.0 - gamma))))
 
@@ -48,22 +82,95 @@ class StretchingSolver(nn.Module):
     def gamma(self) -> Tensor:
         return torch.sigmoid(self.gamma_logit)
 
-    def forward(self, x: Tensor, cloth: Cloth, *, f_hat: Tensor | None, steps: int, trace: list | None = None) -> Tensor:
+    def forward(self, x: Tensor, cloth: Cloth, *, f_hat: Tensor | None, steps: int, trace: list | None = None,
+                bodies: BodySurface | None = None, body_index: Tensor | None = None) -> Tensor:
         """Run `steps` solver steps from x (ΣV, 3) [m]; f̂ (ΣV, 3) [N] or None (pure relaxation).
 
-        If `trace` is a list, the state after each step is appended to it.
+        bodies / body_index (ΣV,): the posed bodies and each vertex's body, for the jacobi
+        solver's contact term (ignored by the explicit one; None = no contact). If `trace` is a
+        list, the state after each step is appended to it.
         """
+        if self.kind is SolverKind.JACOBI:
+            return self._jacobi(x, cloth, f_hat, steps, trace, bodies, body_index)
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
         step = eta
         for _ in range(steps):
             force = internal_forces(x, cloth)
             if f_hat is not None:
                 force = force + f_hat
-            move = step * force
-            if self.max_step:
-                length = move.norm(dim=-1, keepdim=True)
-                move = move * (self.max_step / length.clamp_min(self.max_step))
-            x = x + move
+            x = x + self._clip(step * force)
+            step = step * gamma
+            if trace is not None:
+                trace.append(x)
+        return x
+
+    def _clip(self, move: Tensor) -> Tensor:
+        if not self.max_step:
+            return move
+        length = move.norm(dim=-1, keepdim=True)
+        return move * (self.max_step / length.clamp_min(self.max_step))
+
+    def _jacobi(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
+                bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
+        eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
+        k_c, owner = self.contact_stiffness, cloth.vert_garment
+        eye = torch.eye(3, dtype=x.dtype, device=x.device)
+        planes: tuple[Tensor, Tensor] | None = None
+
+        def depth_of(xt: Tensor) -> Tensor | None:
+            if planes is None:
+                return None
+            return (self.margin - ((xt - planes[0]) * planes[1]).sum(-1)).clamp_min(0.0)
+
+        def potential(xt: Tensor) -> Tensor:
+            """Φ per garment (G,) [J]."""
+            phi = internal_energy(xt, cloth)
+            depth = depth_of(xt)
+            if depth is not None:
+                phi = phi + cloth.sum_per_garment(k_c * depth ** 3, owner)
+            if f_hat is not None:
+                phi = phi - cloth.sum_per_garment((f_hat * xt).sum(-1), owner)
+            return phi
+
+        step = eta
+        phi = None  # Φ at x, carried from the accepted trial while the planes are held
+        for t in range(steps):
+            if bodies is not None and t % self.requery_every == 0:
+                with torch.no_grad():
+                    q = bodies.query(x.detach(), body_index=body_index)
+                planes = (q.closest.to(x.dtype), q.normal.to(x.dtype))
+                phi = None
+            force = internal_forces(x, cloth)
+            depth = depth_of(x)
+            if depth is not None:
+                force = force + (3.0 * k_c * depth * depth)[:, None] * planes[1]
+            if f_hat is not None:
+                force = force + f_hat
+            with torch.no_grad():
+                blocks = vertex_blocks(x.detach(), cloth)
+                if depth is not None:
+                    n = planes[1]
+                    blocks = blocks + (6.0 * k_c * depth.detach())[:, None, None] * n[:, :, None] * n[:, None, :]
+                # a floor relative to each vertex's own stiffness keeps K_i invertible (a vertex of
+                # an unstretched flat patch has a rank-deficient block)
+                rel = max(1e-6, 100.0 * torch.finfo(x.dtype).eps)
+                floor = rel * blocks.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(torch.finfo(x.dtype).tiny)
+                chol = torch.linalg.cholesky(blocks + floor[:, None, None] * eye)
+            move = self._clip(step * torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1))
+            with torch.no_grad():  # per garment: halve until Φ falls, else skip the step
+                x0, trial = x.detach(), move.detach()
+                phi0 = potential(x0) if phi is None else phi
+                factor, phi = torch.ones_like(phi0), phi0.clone()
+                done = torch.zeros_like(phi0, dtype=torch.bool)
+                for _ in range(self.max_halvings + 1):
+                    phi_trial = potential(x0 + trial * factor[owner, None])
+                    lower = ~done & (phi_trial < phi0)
+                    phi, done = torch.where(lower, phi_trial, phi), done | lower
+                    if bool(done.all()):
+                        break
+                    factor = torch.where(done, factor, 0.5 * factor)
+                factor = torch.where(done, factor, torch.zeros_like(factor))
+            x = x + move * factor[owner, None]
             step = step * gamma
             if trace is not None:
                 trace.append(x)

@@ -16,6 +16,13 @@ corners in the order of ``cloth.faces`` (3 corners, 9 dofs) or ``cloth.hinges`` 
 - Bending: batched forward-over-reverse autograd of the per-hinge energy
   (``torch.func.vmap(torch.func.hessian(...))``), or the Gauss-Newton part k·∇θ∇θᵀ alone
   (PSD by construction, cheap, no curvature of θ).
+- `vertex_blocks`: only the 3×3 diagonal block of each vertex, of a PSD majorant of the strain
+  Hessian plus the Gauss-Newton bending Hessian, in closed form (no eigendecomposition): the
+  block-Jacobi preconditioner of the stretching solver. With ``u_a = F w_a``, the corner block
+  of a face is ``V [(w_aᵀ S⁺ w_a) I + (μ + λ) u_a u_aᵀ + μ |w_a|² F Fᵀ]``, where S⁺ is the PSD
+  part of the 2×2 stress S. Only the ``δ_cd S_lj`` term of A can be indefinite (the μ and λ terms
+  sum to ``2μ‖sym(FᵀV)‖² + λ tr(FᵀV)²`` ≥ 0 for any direction V), so replacing S by S⁺ gives a
+  PSD tensor that is ≥ A; where S is PSD (stretch) it is exactly A.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ __all__ = [
     "project_psd",
     "strain_hessian",
     "strain_stress_tensor",
+    "vertex_blocks",
 ]
 
 
@@ -111,11 +119,9 @@ def bend_hessian(x: Tensor, cloth: Cloth, *, project: bool = False, floor: float
     return project_psd(H, floor=floor) if project else H
 
 
-def bend_gauss_newton_hessian(x: Tensor, cloth: Cloth) -> Tensor:
-    """Gauss-Newton bending Hessian k·∇θ∇θᵀ per hinge, x (V, 3) → (H, 12, 12) [J/m²]; PSD.
-
-    ∇θ in closed form, as in `physdrape.physics.bending.bend_forces`.
-    """
+def _angle_gradients(x: Tensor, cloth: Cloth) -> Tensor:
+    """∇θ of each hinge's dihedral angle w.r.t. its 4 vertices, x (V, 3) → (H, 4, 3) [1/m];
+    closed form, as in `physdrape.physics.bending.bend_forces`."""
     h = cloth.hinges
     x0, x1, x2, x3 = (x[h[:, k]] for k in range(4))
     edge = x1 - x0
@@ -129,5 +135,49 @@ def bend_gauss_newton_hessian(x: Tensor, cloth: Cloth) -> Tensor:
     alpha_b = (((x3 - x0) * edge).sum(-1) / edge_sq)[:, None]
     grad0 = -(1.0 - alpha_a) * grad2 - (1.0 - alpha_b) * grad3
     grad1 = -alpha_a * grad2 - alpha_b * grad3
-    g = torch.cat([grad0, grad1, grad2, grad3], dim=-1)  # (H, 12)
+    return torch.stack([grad0, grad1, grad2, grad3], dim=1)
+
+
+def bend_gauss_newton_hessian(x: Tensor, cloth: Cloth) -> Tensor:
+    """Gauss-Newton bending Hessian k·∇θ∇θᵀ per hinge, x (V, 3) → (H, 12, 12) [J/m²]; PSD."""
+    g = _angle_gradients(x, cloth).reshape(-1, 12)
     return cloth.bend_stiffness[:, None, None] * g[:, :, None] * g[:, None, :]
+
+
+def _psd_part_2x2(S: Tensor) -> Tensor:
+    """The PSD part of symmetric 2×2 matrices (eigenvalues clamped at 0), (..., 2, 2), closed form."""
+    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+    mean, half = 0.5 * (a + d), (0.25 * (a - d) ** 2 + b * b).sqrt()
+    lo, hi = mean - half, mean + half
+    # S = hi·P + lo·(I − P) with P the projector on the top eigenvector: S⁺ = hi⁺ P + lo⁺ (I − P).
+    eye = torch.eye(2, dtype=S.dtype, device=S.device)
+    gap = (hi - lo)[..., None, None]
+    proj = torch.where(gap > 0, (S - lo[..., None, None] * eye) / gap.clamp_min(torch.finfo(S.dtype).tiny), 0.5 * eye)
+    return hi.clamp_min(0.0)[..., None, None] * proj + lo.clamp_min(0.0)[..., None, None] * (eye - proj)
+
+
+def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
+    """3×3 diagonal blocks per vertex of a PSD majorant of ∇²(E_strain + E_bend) (module docstring).
+
+    x (V, 3) [m] → (V, 3, 3) [N/m], symmetric PSD. The strain part equals the diagonal blocks of
+    `strain_hessian` wherever every face's stress S is PSD; the bending part is Gauss-Newton.
+    """
+    F = deformation_gradient(x, cloth)  # (F, 3, 2)
+    G = green_strain(F)
+    trace = G[:, 0, 0] + G[:, 1, 1]
+    eye2 = torch.eye(2, dtype=x.dtype, device=x.device)
+    eye3 = torch.eye(3, dtype=x.dtype, device=x.device)
+    S = 2.0 * cloth.mu[:, None, None] * G + (cloth.lam * trace)[:, None, None] * eye2
+    w = _corner_weights(cloth)  # (F, 3, 2)
+    u = torch.einsum("fcj,faj->fac", F, w)  # (F, 3 corners, 3)
+    sws = torch.einsum("faj,fjl,fal->fa", w, _psd_part_2x2(S), w)
+    ww = (w * w).sum(-1)
+    FFt = F @ F.transpose(-1, -2)
+    block = (sws[..., None, None] * eye3 + (cloth.mu + cloth.lam)[:, None, None, None] * u[..., :, None] * u[..., None, :]
+             + (cloth.mu[:, None] * ww)[..., None, None] * FFt[:, None])
+    block = cloth.volume[:, None, None, None] * block
+    out = torch.zeros(cloth.num_verts, 3, 3, dtype=x.dtype, device=x.device)
+    out.index_add_(0, cloth.faces.reshape(-1), block.reshape(-1, 3, 3))
+    g = _angle_gradients(x, cloth)  # (H, 4, 3)
+    bend = cloth.bend_stiffness[:, None, None, None] * g[..., :, None] * g[..., None, :]
+    return out.index_add_(0, cloth.hinges.reshape(-1), bend.reshape(-1, 3, 3))

@@ -21,6 +21,7 @@ from physdrape.atomic import write_text
 from physdrape.config_io import to_mapping
 from physdrape.eval.metrics import b2g_percent
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape
+from physdrape.model.stretching_solver import SolverKind
 from physdrape.train import checkpoint as ckpt
 from physdrape.train.data import DataConfig
 from physdrape.train.loss import LossConfig, drape_loss
@@ -139,9 +140,15 @@ class Trainer:
         self.step = int(meta["step"])
 
     def init_weights(self, checkpoint: str | os.PathLike) -> None:
-        """Start from another checkpoint's model weights (input statistics included)."""
+        """Start from another checkpoint's model weights (input statistics included). The
+        solver's η and γ are kept at this run's initial values when the checkpoint's solver is of
+        another kind (their meaning differs: a compliance in m/N vs a fraction of a Jacobi step)."""
         weights, config = ckpt.read_checkpoint(checkpoint)
         own = self.model.state_dict()
+        theirs = config.get("train", {}).get("model", {}).get("solver", SolverKind.EXPLICIT.value)
+        if SolverKind(theirs) is not self.model.config.solver:
+            weights = {k: v for k, v in weights.items() if not k.startswith("solver.")}
+            weights.update({k: v for k, v in own.items() if k.startswith("solver.")})
         try:
             self.model.load_state_dict({k: v.to(own[k].dtype) if k in own else v for k, v in weights.items()})
         except RuntimeError as exc:
