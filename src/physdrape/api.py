@@ -684,25 +684,6 @@ class Draper:
             bar.close()
         return [out[i] for i in range(n)]
 
-    def _physics_only(self, inp, steps: int, keep_trace: bool):
-        """The model's explicit solver steps (f̂ = 0) and collision handler from X_init, without
-        the network pass: the warm-start continuation of a sequence (see `Motion`)."""
-        from physdrape.model.config import Variant
-        from physdrape.model.physdrape import DrapeOutput
-
-        model, x = self.model, inp.x_init
-        f_hat = torch.zeros_like(x)
-        trace: list[Tensor] = []
-        variant = model.config.variant
-        if variant.uses_solver:
-            x = model.solver(x, inp.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
-                             bodies=inp.bodies, body_index=inp.body_index)
-        if variant.uses_handler:
-            x = model.handler(x, inp.bodies, inp.body_index)
-        elif variant is Variant.POST_COL:
-            x = model.handler(x, inp.bodies, inp.body_index, delta=1.0)
-        return DrapeOutput(x=x, x_gnn=inp.x_init, f_hat=f_hat, trace=tuple(trace))
-
     def _blended_affine(self, template: _Template, rig: str, state) -> Tensor:
         """The body's skinning transforms blended per garment vertex (state of batch 1), (V, 3, 4) float64."""
         return self.transfer(template, rig).blended_transforms(state)[0].to(torch.float64)
@@ -784,8 +765,8 @@ class Draper:
         vert_body = torch.tensor(body_ids, dtype=torch.int64)[batch.vert_garment]
         inp = DrapeInput(batch, cloth, torch.cat(x_init), bodies, vert_body)
         t2 = time.perf_counter()
-        out = self._physics_only(inp, steps, keep_trace) if physics_only else self.model(inp, steps=steps,
-                                                                                             keep_trace=keep_trace)
+        run = self.model.physics_only if physics_only else self.model
+        out = run(inp, steps=steps, keep_trace=keep_trace)
         x = out.x
         t3 = time.perf_counter()
         convergence: list[dict[str, list[float]]] = [{} for _ in jobs]

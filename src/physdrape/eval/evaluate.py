@@ -13,6 +13,8 @@ Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switc
   as post-processing (variant POST_COL; the paper's Post-Col is a model *trained* without the
   handler — here it is the full model's weights with the learned δ replaced by 1);
 - ``physdrape_t3`` / ``physdrape_t15``: the full model (GNN → solver T → handler, learned δ);
+- ``physics_only``: the same solver and handler with the network left out (Δx = 0, f̂ = 0): what
+  the network adds is the difference to ``physdrape_t15``;
 - ``oracle``: `physdrape.physics.relax` from X_init (penalty contact, default tol 1e-2, a wall-time
   budget per instance) — the reference energies; its row reports whether it converged.
 
@@ -86,13 +88,15 @@ METRIC_KEYS = ("strain", "bend", "b2g_percent", "close_percent", "residual_force
 @dataclass(frozen=True)
 class RowSpec:
     """One model row: `variant` of the model, `steps` solver steps T (None: the checkpoint's
-    eval_steps), `definition` a one-line statement of what ran."""
+    eval_steps), `definition` a one-line statement of what ran; network=False runs the model's
+    physics alone (`PhysDrape.physics_only`: Δx = 0, f̂ = 0)."""
 
     key: str
     label: str
     variant: Variant
     steps: int | None
     definition: str
+    network: bool = True
 
 
 MAIN_ROWS = (
@@ -101,6 +105,9 @@ MAIN_ROWS = (
             "GNN → solver (T = eval_steps) → handler with δ = 1 as post-processing (full model's weights, learned δ replaced by 1)"),
     RowSpec("physdrape_t3", "PhysDrape (T=3)", Variant.FULL, 3, "GNN → solver T = 3 → handler (learned δ)"),
     RowSpec("physdrape_t15", "PhysDrape (T=15)", Variant.FULL, 15, "GNN → solver T = 15 → handler (learned δ)"),
+    RowSpec("physics_only", "No network (T=15; context)", Variant.FULL, 15,
+            "X_init → solver T = 15 with Δx = 0, f̂ = 0 → handler: the model's physics without its network, "
+            "so the PhysDrape row minus this one is what the network adds", network=False),
 )
 ABLATION_ROWS = (
     RowSpec("gnn", "GNN", Variant.GNN_ONLY, None, "GNN only"),
@@ -309,10 +316,10 @@ def total_energy(x: torch.Tensor, batch: DrapeInput) -> torch.Tensor:
 
 
 @torch.no_grad()
-def run_model(model: PhysDrape, batch: DrapeInput, *, steps: int | None) -> tuple[torch.Tensor, float]:
-    """(drape x, wall seconds) of one model call."""
+def run_model(model: PhysDrape, batch: DrapeInput, *, steps: int | None, network: bool = True) -> tuple[torch.Tensor, float]:
+    """(drape x, wall seconds) of one model call (network=False: `PhysDrape.physics_only`)."""
     t0 = time.perf_counter()
-    out = model(batch, steps=steps)
+    out = model(batch, steps=steps) if network else model.physics_only(batch, steps=steps)
     return out.x, time.perf_counter() - t0
 
 
@@ -372,8 +379,8 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
         start.append({**_metrics(batch.x_init, batch), "wall_s": init_s})
         if skinned is not None:
             plain.append({**_metrics(skinned, batch), "wall_s": 0.0})
-        for key, (model_key, steps) in rows.items():
-            x, wall = run_model(models[model_key], batch, steps=steps)
+        for key, (model_key, steps, network) in rows.items():
+            x, wall = run_model(models[model_key], batch, steps=steps, network=network)
             rec = _metrics(x, batch)
             rec["wall_s"] = init_s + wall  # a drape costs its kinematic init plus the model
             rec["model_wall_s"] = wall
@@ -448,7 +455,7 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
     for spec in MAIN_ROWS:
         models[spec.key], checkpoints[spec.key] = load_model(checkpoint, variant=spec.variant)
     eval_steps = checkpoints["physdrape_t15"]["eval_steps"]
-    main_rows = {s.key: (s.key, s.steps if s.steps is not None else eval_steps) for s in MAIN_ROWS}
+    main_rows = {s.key: (s.key, s.steps if s.steps is not None else eval_steps, s.network) for s in MAIN_ROWS}
     ablation_sources = {}
     for spec in ABLATION_ROWS:
         key = f"ablation:{spec.key}"
@@ -458,7 +465,7 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
         else:
             models[key], checkpoints[key] = load_model(checkpoint, variant=spec.variant)
             ablation_sources[spec.key] = "switched"
-    abl_rows = {f"ablation:{s.key}": (f"ablation:{s.key}", checkpoints[f"ablation:{s.key}"]["eval_steps"])
+    abl_rows = {f"ablation:{s.key}": (f"ablation:{s.key}", checkpoints[f"ablation:{s.key}"]["eval_steps"], True)
                 for s in ABLATION_ROWS}
 
     if body is None:
