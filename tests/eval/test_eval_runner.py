@@ -133,7 +133,7 @@ def test_converged_oracle_row_meets_its_tolerance(checkpoint):
     model, _ = load_model(checkpoint, variant=Variant.FULL)
     config = EvalConfig(instances=1, oracle_budget_s=30.0)
     inst = _Instance("test", 0, "sheet", 0, 0, 81, lambda: InstanceInput(sheet_over_box_edge(), 0.0, None))
-    data = _evaluate_set([inst], {"full": model}, {"full": ("full", 3)}, config, log=lambda _: None)
+    data = _evaluate_set([inst], {"full": model}, {"full": ("full", 3, True)}, config, log=lambda _: None)
     (record,) = data["oracle"]["per_instance"]
     assert record["converged"], record["reason"]
     assert record["oracle_residual"] < config.oracle_tol
