@@ -104,3 +104,25 @@ def test_solver_kind_is_checked():
     assert StretchingSolver(kind="jacobi").kind is SolverKind.JACOBI
     with pytest.raises(ValueError, match="requery_every"):
         StretchingSolver(kind="jacobi", requery_every=0)
+
+
+def test_momentum_keeps_every_step_a_descent_step_and_relaxes_further():
+    """Heavy-ball steps fall back to plain ones where they would raise Φ: still monotone, and on
+    a long-wavelength stretch (a whole tube too wide) they relax more in the same steps."""
+    batch, x0 = _case(radii=(0.16, 0.185), stretch=1.15)
+    planes = None
+    out = {}
+    for beta in (0.0, 0.8):
+        solver = StretchingSolver(kind="jacobi", eta=1.0, gamma=0.98, max_step=0.01, momentum=beta, requery_every=20)
+        trace = []
+        with torch.no_grad():
+            out[beta] = solver(x0, batch.cloth, f_hat=None, steps=20, trace=trace, bodies=batch.bodies,
+                               body_index=batch.body_index)
+        q = batch.bodies.query(x0, body_index=batch.body_index)
+        planes = (q.closest, q.normal)
+        phis = torch.stack([_potential(x, batch.cloth, torch.zeros_like(x0), planes) for x in [x0, *trace]])
+        assert (phis[1:] <= phis[:-1]).all(), beta
+    end = {beta: _potential(x, batch.cloth, torch.zeros_like(x0), planes) for beta, x in out.items()}
+    assert (end[0.8] < end[0.0]).all(), end
+    with pytest.raises(ValueError, match="momentum"):
+        StretchingSolver(kind="jacobi", momentum=1.0)

