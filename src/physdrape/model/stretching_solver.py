@@ -125,8 +125,7 @@ class StretchingSolver(nn.Module):
                 bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
         k_c, owner = self.contact_stiffness, cloth.vert_garment
-        eye = torch.eye(3, dtype=x.dtype, device=x.device)
-        planes: tuple[Tensor, Tensor] | None = None
+        planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the body, held
 
         def depth_of(xt: Tensor) -> Tensor | None:
             if planes is None:
@@ -158,37 +157,13 @@ class StretchingSolver(nn.Module):
                 force = force + (3.0 * k_c * depth * depth)[:, None] * planes[1]
             if f_hat is not None:
                 force = force + f_hat
-            with torch.no_grad():
-                blocks = vertex_blocks(x.detach(), cloth)
-                if depth is not None:
-                    n = planes[1]
-                    blocks = blocks + (6.0 * k_c * depth.detach())[:, None, None] * n[:, :, None] * n[:, None, :]
-                # a floor relative to each vertex's own stiffness keeps K_i invertible (a vertex of
-                # an unstretched flat patch has a rank-deficient block)
-                rel = max(1e-6, 100.0 * torch.finfo(x.dtype).eps)
-                floor = rel * blocks.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(torch.finfo(x.dtype).tiny)
-                chol = torch.linalg.cholesky(blocks + floor[:, None, None] * eye)
+            chol = self._stiffness_factor(x.detach(), cloth, depth, None if planes is None else planes[1])
             plain = step * torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1)
             # the heavy-ball candidate first (if any), then the plain step (a restart of the momentum)
             candidates = [self._clip(plain + self.momentum * velocity)] if velocity is not None else []
             candidates.append(self._clip(plain))
-            with torch.no_grad():  # per garment: halve until Φ falls, else skip the step
-                x0 = x.detach()
-                phi0 = potential(x0) if phi is None else phi
-                phi = phi0.clone()
-                done = torch.zeros_like(phi0, dtype=torch.bool)
-                factors = []
-                for move in candidates:
-                    trial, factor = move.detach(), torch.ones_like(phi0)
-                    taken = torch.zeros_like(done)
-                    for _ in range(self.max_halvings + 1):
-                        phi_trial = potential(x0 + trial * factor[owner, None])
-                        lower = ~done & (phi_trial < phi0)
-                        phi, done, taken = torch.where(lower, phi_trial, phi), done | lower, taken | lower
-                        if bool(done.all()):
-                            break
-                        factor = torch.where(done, factor, 0.5 * factor)
-                    factors.append(torch.where(taken, factor, torch.zeros_like(factor)))
+            x0 = x.detach()
+            factors, phi = self._descent_factors(potential, x0, potential(x0) if phi is None else phi, candidates, owner)
             accepted = sum(move * factor[owner, None] for move, factor in zip(candidates, factors))
             x = x + accepted
             velocity = accepted if self.momentum else None
@@ -196,3 +171,38 @@ class StretchingSolver(nn.Module):
             if trace is not None:
                 trace.append(x)
         return x
+
+    @torch.no_grad()
+    def _stiffness_factor(self, x: Tensor, cloth: Cloth, depth: Tensor | None, normal: Tensor | None) -> Tensor:
+        """Cholesky factors of the per-vertex stiffness blocks K_i (strain, bending, contact), (V, 3, 3)."""
+        blocks = vertex_blocks(x, cloth)
+        if depth is not None:
+            contact = 6.0 * self.contact_stiffness * depth.detach()
+            blocks = blocks + contact[:, None, None] * normal[:, :, None] * normal[:, None, :]
+        # a floor relative to each vertex's own stiffness keeps K_i invertible (a vertex of an
+        # unstretched flat patch has a rank-deficient block)
+        rel = max(1e-6, 100.0 * torch.finfo(x.dtype).eps)
+        floor = rel * blocks.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(torch.finfo(x.dtype).tiny)
+        return torch.linalg.cholesky(blocks + floor[:, None, None] * torch.eye(3, dtype=x.dtype, device=x.device))
+
+    @torch.no_grad()
+    def _descent_factors(self, potential, x0: Tensor, phi0: Tensor, candidates: list[Tensor],
+                         owner: Tensor) -> tuple[list[Tensor], Tensor]:
+        """The safeguard: per garment, the first candidate move (in order) that lowers Φ within
+        `max_halvings` halvings. Returns each candidate's per-garment factor (G,) (0 where not
+        taken; all 0 for a garment whose Φ no candidate lowers) and Φ after the step (G,)."""
+        phi = phi0.clone()
+        done = torch.zeros_like(phi0, dtype=torch.bool)
+        factors = []
+        for move in candidates:
+            trial, factor = move.detach(), torch.ones_like(phi0)
+            taken = torch.zeros_like(done)
+            for _ in range(self.max_halvings + 1):
+                phi_trial = potential(x0 + trial * factor[owner, None])
+                lower = ~done & (phi_trial < phi0)
+                phi, done, taken = torch.where(lower, phi_trial, phi), done | lower, taken | lower
+                if bool(done.all()):
+                    break
+                factor = torch.where(done, factor, 0.5 * factor)
+            factors.append(torch.where(taken, factor, torch.zeros_like(factor)))
+        return factors, phi
