@@ -3,7 +3,7 @@
 - `render_result`: shaded body + garment, front and three-quarter views ("shaded"), or the
   per-vertex residual force ‖F_int‖/(m g) as a heatmap with penetrating faces (centroid inside
   the body) in red ("residual"; the paper's Fig. 1).
-- `convergence_figure`: energy and total force over the explicit solver steps (paper Fig. 3).
+- `convergence_figure`: energy and total force over the stretching solver steps (paper Fig. 3).
 - `material_sweep_figure`: the same garment and pose in several fabrics side by side (Fig. 6).
 - `compose_gallery`: tiles of those PNGs (``physdrape drape --figures`` writes gallery.png;
   docs/gallery.png is made by ``physdrape drape --checkpoint runs/cpu_default --pose stand
@@ -266,7 +266,7 @@ def convergence_figure(result, path: str | os.PathLike) -> Path:
     axes[1].set_yscale("log")
     for ax in axes:
         ax.grid(alpha=0.3)
-    fig.suptitle(f"{result.name}: explicit solver convergence", fontsize=10)
+    fig.suptitle(f"{result.name}: stretching solver convergence", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
