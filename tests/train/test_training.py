@@ -115,3 +115,25 @@ def test_init_from_another_solver_kind_keeps_this_runs_eta_and_gamma(tmp_path):
             assert torch.equal(value, fresh[name]) and not torch.equal(value, base[name]), name
         else:
             assert torch.equal(value, base[name]), name
+
+
+def test_init_from_with_a_zero_output_keeps_the_decoders_last_layer_at_zero(tmp_path):
+    """zero_init_output + init_from: the checkpoint's features, a silent network at the start
+    (the drape is the solver's and handler's alone), and learning from there."""
+    from dataclasses import replace
+
+    trainer(tmp_path / "base").run()
+    base, _ = ckpt.read_checkpoint(tmp_path / "base")
+    silent = replace(TINY, model=replace(TINY.model, zero_init_output=True),
+                     optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
+    tuned = trainer(tmp_path / "tuned", silent)
+    tuned.init_weights(tmp_path / "base")
+    last = f"gnn.decoder.{len(tuned.model.gnn.decoder) - 1}."
+    for name, value in tuned.model.state_dict().items():
+        if name.startswith(last):
+            assert not value.any() and base[name].any(), name
+        else:
+            assert torch.equal(value, base[name]), name
+    batch = tuned.source.make_batch([11, 12])
+    tuned.model.eval()
+    torch.testing.assert_close(tuned.model(batch).x, tuned.model.physics_only(batch).x, rtol=0, atol=0)

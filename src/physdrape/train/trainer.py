@@ -140,15 +140,21 @@ class Trainer:
         self.step = int(meta["step"])
 
     def init_weights(self, checkpoint: str | os.PathLike) -> None:
-        """Start from another checkpoint's model weights (input statistics included). The
-        solver's η and γ are kept at this run's initial values when the checkpoint's solver is of
-        another kind (their meaning differs: a compliance in m/N vs a fraction of a Jacobi step)."""
+        """Start from another checkpoint's model weights (input statistics included). Kept at this
+        run's initial values instead: the solver's η and γ when the checkpoint's solver is of
+        another kind (their meaning differs: a compliance in m/N vs a fraction of a Jacobi step),
+        and the decoder's last layer when `model.zero_init_output` is set (the fine-tune then
+        starts from the drape without the network and takes the checkpoint's features)."""
         weights, config = ckpt.read_checkpoint(checkpoint)
         own = self.model.state_dict()
+        keep = []
         theirs = config.get("train", {}).get("model", {}).get("solver", SolverKind.EXPLICIT.value)
         if SolverKind(theirs) is not self.model.config.solver:
-            weights = {k: v for k, v in weights.items() if not k.startswith("solver.")}
-            weights.update({k: v for k, v in own.items() if k.startswith("solver.")})
+            keep += [k for k in own if k.startswith("solver.")]
+        if self.model.config.zero_init_output:
+            last = f"gnn.decoder.{len(self.model.gnn.decoder) - 1}."
+            keep += [k for k in own if k.startswith(last)]
+        weights = {**weights, **{k: own[k] for k in keep}}
         try:
             self.model.load_state_dict({k: v.to(own[k].dtype) if k in own else v for k, v in weights.items()})
         except RuntimeError as exc:
