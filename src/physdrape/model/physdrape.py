@@ -95,6 +95,18 @@ class PhysDrape(nn.Module):
         weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
         f_hat = out[:, 3:] * weight[:, None]
         x_gnn = x_init + delta_x
+        return self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)
+
+    def physics_only(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
+        """The model's solver steps (Δx = 0, f̂ = 0) and collision handler from X_init, without the
+        network pass: the warm-start continuation of a sequence, and the evaluation's measure of
+        what the network adds. Modules as in `forward` for the configured variant."""
+        return self._physics(batch, batch.x_init, torch.zeros_like(batch.x_init), steps=steps, keep_trace=keep_trace)
+
+    def _physics(self, batch: DrapeInput, x_gnn: Tensor, f_hat: Tensor, *, steps: int | None,
+                 keep_trace: bool) -> DrapeOutput:
+        """The variant's solver and handler from the network's output x_gnn (ΣV, 3) and f̂."""
+        cfg = self.config
         x, trace = x_gnn, []
         if cfg.variant.uses_solver:
             if steps is None:
@@ -106,20 +118,3 @@ class PhysDrape(nn.Module):
         elif cfg.variant is Variant.POST_COL and not self.training:
             x = self.handler(x, batch.bodies, batch.body_index, delta=1.0)
         return DrapeOutput(x=x, x_gnn=x_gnn, f_hat=f_hat, trace=tuple(trace))
-
-    def physics_only(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
-        """The model's solver steps (Δx = 0, f̂ = 0) and collision handler from X_init, without the
-        network pass: the warm-start continuation of a sequence, and the evaluation's measure of
-        what the network adds. Modules as in `forward` for the configured variant."""
-        cfg = self.config
-        x, f_hat, trace = batch.x_init, torch.zeros_like(batch.x_init), []
-        if cfg.variant.uses_solver:
-            if steps is None:
-                steps = cfg.train_steps if self.training else cfg.eval_steps
-            x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
-                            bodies=batch.bodies, body_index=batch.body_index)
-        if cfg.variant.uses_handler:
-            x = self.handler(x, batch.bodies, batch.body_index)
-        elif cfg.variant is Variant.POST_COL and not self.training:
-            x = self.handler(x, batch.bodies, batch.body_index, delta=1.0)
-        return DrapeOutput(x=x, x_gnn=batch.x_init, f_hat=f_hat, trace=tuple(trace))
