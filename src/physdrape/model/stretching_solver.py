@@ -39,8 +39,8 @@ class StretchingSolver(nn.Module):
       queried every `requery_every` steps, so gravity cannot pull the garment through the body
       mid-solve. Each step is a descent step on each garment's
       Φ = E_strain + E_bend + E_grav + E_coll − f̂·x: where Φ would rise, the garment's step is
-      halved (up to `max_halvings` times, else skipped), so the solver never raises the energy
-      it relaxes. K (a preconditioner) is not differentiated; the step is, through F, f̂, η, γ.
+      halved (up to `max_halvings` times, else skipped), so no step raises the energy it
+      relaxes (on the body planes held at that step). K (a preconditioner) is not differentiated; the step is, through F, f̂, η, γ.
       Optional heavy-ball momentum (`momentum`) with restarts, under the same safeguard.
 
     Stability guard (both kinds): each vertex's step is clipped to `max_step` [m] in length,
@@ -60,8 +60,8 @@ class StretchingSolver(nn.Module):
             clip(η γ^t K⁻¹F + β·(last accepted move)) and falls back to the plain step (a restart)
             where that does not lower Φ. Jacobi steps relax a garment's short wavelengths at once
             and its long ones (the garment riding up or sliding down as a whole) slowly; momentum
-            carries those along (8 test instances, no network, T = 15: E_strain 0.079 J at
-            β = 0, 0.062 J at β = 0.8).
+            carries those along (the 8 evaluation instances, no network, T = 15: E_strain
+            0.079 J at β = 0, 0.064 J at β = 0.8).
     """
 
     def __init__(self, *, eta: float = 1e-3, gamma: float = 0.9, max_step: float = 5e-3,
