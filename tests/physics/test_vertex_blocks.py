@@ -13,7 +13,7 @@ from physdrape.physics.hessians import (
     strain_hessian,
     vertex_blocks,
 )
-from physdrape.physics.strain import deformation_gradient, green_strain
+from physdrape.physics.strain import deformation_gradient, green_strain, stress
 
 
 def _cloth():
@@ -31,9 +31,7 @@ def _diagonal_blocks(h: torch.Tensor, elems: torch.Tensor, num_verts: int) -> to
 
 
 def _stress(x, cloth):
-    G = green_strain(deformation_gradient(x, cloth))
-    trace = G[:, 0, 0] + G[:, 1, 1]
-    return 2.0 * cloth.mu[:, None, None] * G + (cloth.lam * trace)[:, None, None] * torch.eye(2, dtype=x.dtype)
+    return stress(green_strain(deformation_gradient(x, cloth)), cloth)
 
 
 def test_psd_part_of_2x2_matches_eigendecomposition():

@@ -40,7 +40,8 @@ class StretchingSolver(nn.Module):
       mid-solve. Each step is a descent step on each garment's
       Φ = E_strain + E_bend + E_grav + E_coll − f̂·x: where Φ would rise, the garment's step is
       halved (up to `max_halvings` times, else skipped), so no step raises the energy it
-      relaxes (on the body planes held at that step). K (a preconditioner) is not differentiated; the step is, through F, f̂, η, γ.
+      relaxes (on the body planes held at that step). K (a preconditioner) is not
+      differentiated; the step is, through F, f̂, η and γ.
       Optional heavy-ball momentum (`momentum`) with restarts, under the same safeguard.
 
     Stability guard (both kinds): each vertex's step is clipped to `max_step` [m] in length,

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.strain import deformation_gradient, green_strain
+from physdrape.physics.strain import deformation_gradient, green_strain, stress
 
 __all__ = [
     "bend_gauss_newton_hessian",
@@ -65,12 +65,10 @@ def strain_stress_tensor(x: Tensor, cloth: Cloth) -> Tensor:
     Units: Pa (P = ∂ψ/∂F, ψ an energy per volume).
     """
     F = deformation_gradient(x, cloth)  # (F, 3, 2)
-    G = green_strain(F)
     mu, lam = cloth.mu[:, None, None, None, None], cloth.lam[:, None, None, None, None]
     eye2 = torch.eye(2, dtype=x.dtype, device=x.device)
     eye3 = torch.eye(3, dtype=x.dtype, device=x.device)
-    trace = G[:, 0, 0] + G[:, 1, 1]
-    S = 2.0 * cloth.mu[:, None, None] * G + (cloth.lam * trace)[:, None, None] * eye2  # (F, 2, 2)
+    S = stress(green_strain(F), cloth)  # (F, 2, 2)
     FFt = F @ F.transpose(-1, -2)  # (F, 3, 3)
     t1 = eye3[None, :, None, :, None] * S[:, None, :, None, :]  # δ_cd S_jl
     t2 = mu * torch.einsum("fcl,fdj->fcjdl", F, F)  # μ F_cl F_dj
@@ -163,14 +161,10 @@ def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
     `strain_hessian` wherever every face's stress S is PSD; the bending part is Gauss-Newton.
     """
     F = deformation_gradient(x, cloth)  # (F, 3, 2)
-    G = green_strain(F)
-    trace = G[:, 0, 0] + G[:, 1, 1]
-    eye2 = torch.eye(2, dtype=x.dtype, device=x.device)
     eye3 = torch.eye(3, dtype=x.dtype, device=x.device)
-    S = 2.0 * cloth.mu[:, None, None] * G + (cloth.lam * trace)[:, None, None] * eye2
     w = _corner_weights(cloth)  # (F, 3, 2)
     u = torch.einsum("fcj,faj->fac", F, w)  # (F, 3 corners, 3)
-    sws = torch.einsum("faj,fjl,fal->fa", w, _psd_part_2x2(S), w)
+    sws = torch.einsum("faj,fjl,fal->fa", w, _psd_part_2x2(stress(green_strain(F), cloth)), w)
     ww = (w * w).sum(-1)
     FFt = F @ F.transpose(-1, -2)
     block = (sws[..., None, None] * eye3 + (cloth.mu + cloth.lam)[:, None, None, None] * u[..., :, None] * u[..., None, :]

@@ -22,6 +22,13 @@ def green_strain(F: Tensor) -> Tensor:
     return 0.5 * (F.transpose(-1, -2) @ F - eye)
 
 
+def stress(G: Tensor, cloth: Cloth) -> Tensor:
+    """StVK second Piola-Kirchhoff stress S = 2μG + λ tr(G) I [Pa], G (..., F, 2, 2) → (..., F, 2, 2)."""
+    trace = G[..., 0, 0] + G[..., 1, 1]
+    eye = torch.eye(2, dtype=G.dtype, device=G.device)
+    return 2.0 * cloth.mu[:, None, None] * G + (cloth.lam * trace)[..., None, None] * eye
+
+
 def strain_energy(x: Tensor, cloth: Cloth) -> Tensor:
     """E_strain per face = t·A·(μ‖G‖²_F + λ/2·tr(G)²) [J], x (..., V, 3) → (..., F)."""
     G = green_strain(deformation_gradient(x, cloth))
@@ -37,10 +44,7 @@ def strain_forces(x: Tensor, cloth: Cloth) -> Tensor:
     −∇E_strain; no autograd. x (..., V, 3) → (..., V, 3).
     """
     F = deformation_gradient(x, cloth)
-    G = green_strain(F)
-    trace = G[..., 0, 0] + G[..., 1, 1]
-    S = 2.0 * cloth.mu[:, None, None] * G
-    S = S + (cloth.lam * trace)[..., None, None] * torch.eye(2, dtype=x.dtype, device=x.device)
+    S = stress(green_strain(F), cloth)
     H = -(cloth.volume[:, None, None] * (F @ S)) @ cloth.rest_inv.transpose(-1, -2)  # (..., F, 3, 2)
     f1, f2 = H[..., 0], H[..., 1]
     corner = torch.stack([-(f1 + f2), f1, f2], dim=-2)  # (..., F, 3 corners, 3)
