@@ -68,3 +68,38 @@ def test_coarse_graphs_halve_the_nodes_double_the_edges_and_stay_connected():
     again = topology.coarse_graphs(edges, len(verts), 3)
     assert all(np.array_equal(a, b) for a, b in zip(levels, again))
     assert topology.coarse_graphs(edges, len(verts), 0) == []
+
+
+def test_aggregates_partition_the_mesh_into_connected_patches():
+    from scipy.sparse.csgraph import connected_components
+
+    verts, faces = grid_sheet(33, 33, width=1.0, height=1.0)
+    # plus a lone triangle (too small to keep a seed) and an isolated vertex: one patch each
+    faces = np.concatenate([faces, [[len(verts), len(verts) + 1, len(verts) + 2]]])
+    num_verts = len(verts) + 4
+    edges = topology.undirected_edges(faces)
+    label = topology.aggregates(edges, num_verts, 2)
+    assert label.shape == (num_verts,) and label.min() == 0
+    count = label.max() + 1
+    assert set(np.unique(label)) == set(range(count))
+    assert 100 < count < 300  # two levels: about 6 grid vertices per patch (measured 184 + 2 for 33² + 4)
+    assert label[-4:-1].tolist() == [label[-4]] * 3 and label[-1] not in label[:-1]
+    adjacency = topology.vertex_adjacency(num_verts, edges)
+    for patch in range(count):  # each patch is connected through its own edges
+        members = np.flatnonzero(label == patch)
+        assert connected_components(adjacency[members][:, members], directed=False)[0] == 1
+    assert np.array_equal(label, topology.aggregates(edges, num_verts, 2))
+
+
+def test_smoothed_prolongation_is_a_smooth_partition_of_unity():
+    verts, faces = grid_sheet(33, 33, width=1.0, height=1.0)
+    edges = topology.undirected_edges(faces)
+    label = topology.aggregates(edges, len(verts), 2)
+    raw = topology.smoothed_prolongation(edges, len(verts), label, 0).toarray()
+    assert np.array_equal(raw, np.eye(label.max() + 1)[label])  # no passes: the indicators
+    p = topology.smoothed_prolongation(edges, len(verts), label, 2).toarray()
+    assert (p >= 0).all()
+    np.testing.assert_allclose(p.sum(1), 1.0, rtol=1e-12)
+    # smoother: the jump of a patch's weight across a mesh edge is smaller than the indicator's
+    jump = lambda m: np.abs(m[edges[:, 0]] - m[edges[:, 1]]).max(1).mean()
+    assert jump(p) < 0.6 * jump(raw)

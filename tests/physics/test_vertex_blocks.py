@@ -1,4 +1,4 @@
-"""The block-Jacobi preconditioner: per-vertex 3×3 blocks of a PSD majorant of the Hessian (float64)."""
+"""The preconditioners' blocks: per-face 9×9 and per-vertex 3×3 blocks of a PSD majorant of the Hessian (float64)."""
 
 import torch
 from physics_cases import random_rotation
@@ -7,8 +7,9 @@ from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.physics import Cloth
 from physdrape.physics.hessians import (
-    _psd_part_2x2,
+    _abs_part_2x2,
     bend_gauss_newton_hessian,
+    face_blocks,
     project_psd,
     strain_hessian,
     vertex_blocks,
@@ -30,27 +31,32 @@ def _diagonal_blocks(h: torch.Tensor, elems: torch.Tensor, num_verts: int) -> to
     return out
 
 
+def _stretched(garment):
+    """A rotated anisotropic stretch with a gentle bend: every face's stress is PSD."""
+    x = garment.rest * torch.tensor([1.12, 1.05, 1.0], dtype=torch.float64)
+    x = x + torch.stack([0 * x[:, 0], 0 * x[:, 0], 0.2 * x[:, 0] ** 2], -1)
+    return x @ random_rotation(3).T
+
+
 def _stress(x, cloth):
     return stress(green_strain(deformation_gradient(x, cloth)), cloth)
 
 
-def test_psd_part_of_2x2_matches_eigendecomposition():
+def test_abs_part_of_2x2_matches_eigendecomposition():
     gen = torch.Generator().manual_seed(0)
     m = torch.randn(200, 2, 2, generator=gen, dtype=torch.float64)
     s = m + m.transpose(-1, -2)
     s[0] = torch.eye(2, dtype=torch.float64) * 3.0  # repeated eigenvalue
     s[1] = -torch.eye(2, dtype=torch.float64)
-    evals = torch.linalg.eigvalsh(s)
+    evals, evecs = torch.linalg.eigh(s)
     assert (evals[:, 0] < 0).any() and (evals[:, 1] > 0).any()
-    torch.testing.assert_close(_psd_part_2x2(s), project_psd(s), rtol=1e-12, atol=1e-12)
+    expected = (evecs * evals.abs().unsqueeze(-2)) @ evecs.transpose(-1, -2)
+    torch.testing.assert_close(_abs_part_2x2(s), expected, rtol=1e-12, atol=1e-12)
 
 
 def test_blocks_equal_exact_hessian_diagonal_where_stretched():
     garment, cloth = _cloth()
-    # a rotated anisotropic stretch with a gentle bend: every face's stress is PSD
-    x = garment.rest * torch.tensor([1.12, 1.05, 1.0], dtype=torch.float64)
-    x = x + torch.stack([0 * x[:, 0], 0 * x[:, 0], 0.2 * x[:, 0] ** 2], -1)
-    x = x @ random_rotation(3).T
+    x = _stretched(garment)
     assert (torch.linalg.eigvalsh(_stress(x, cloth))[:, 0] > 0).all()
     exact = _diagonal_blocks(strain_hessian(x, cloth), cloth.faces, cloth.num_verts)
     exact += _diagonal_blocks(bend_gauss_newton_hessian(x, cloth), cloth.hinges, cloth.num_verts)
@@ -73,3 +79,28 @@ def test_blocks_are_psd_majorants_in_compression():
     scale = fast.abs().max().item()
     assert torch.linalg.eigvalsh(fast).min() >= -1e-10 * scale
     assert torch.linalg.eigvalsh(fast - exact).min() >= -1e-10 * scale
+
+
+def test_face_blocks_equal_exact_hessian_where_stretched():
+    garment, cloth = _cloth()
+    x = _stretched(garment)
+    assert (torch.linalg.eigvalsh(_stress(x, cloth))[:, 0] > 0).all()
+    exact = strain_hessian(x, cloth)
+    torch.testing.assert_close(face_blocks(x, cloth), exact, rtol=1e-10, atol=1e-10 * exact.abs().max().item())
+
+
+def test_face_blocks_are_psd_majorants_in_compression_and_share_the_vertex_diagonal():
+    garment, cloth = _cloth()
+    gen = torch.Generator().manual_seed(2)
+    x = garment.rest * torch.tensor([0.8, 1.1, 1.0], dtype=torch.float64)
+    x = x + 0.01 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
+    assert (torch.linalg.eigvalsh(_stress(x, cloth))[:, 0] < 0).sum() > 10
+    exact, fast = strain_hessian(x, cloth), face_blocks(x, cloth)
+    assert torch.linalg.eigvalsh(exact).min() < 0  # not vacuous: some exact face blocks are indefinite
+    scale = fast.abs().max().item()
+    assert torch.linalg.eigvalsh(fast).min() >= -1e-10 * scale
+    assert torch.linalg.eigvalsh(fast - exact).min() >= -1e-10 * scale
+    # the vertex blocks are the diagonal of the face blocks plus Gauss-Newton bending
+    diagonal = _diagonal_blocks(fast, cloth.faces, cloth.num_verts)
+    diagonal += _diagonal_blocks(bend_gauss_newton_hessian(x, cloth), cloth.hinges, cloth.num_verts)
+    torch.testing.assert_close(vertex_blocks(x, cloth), diagonal, rtol=1e-10, atol=1e-10 * scale)

@@ -148,12 +148,17 @@ def coarse_graphs(edges: np.ndarray, num_verts: int, levels: int) -> list[np.nda
         one array per coarse level 1 … levels of undirected edges (E_l, 2) in the mesh's vertex ids,
         i < j; a level of a single node per connected component has no edges (and ends the list).
     """
+    return [level_edges for _, level_edges in _coarse_levels(edges, num_verts, levels)]
+
+
+def _coarse_levels(edges: np.ndarray, num_verts: int, levels: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(nodes, edges) of each level of `coarse_graphs`, nodes as sorted mesh vertex ids."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
 
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     nodes = np.unique(edges) if len(edges) else np.zeros(0, dtype=np.int64)
-    out: list[np.ndarray] = []
+    out: list[tuple[np.ndarray, np.ndarray]] = []
     for _ in range(levels):
         if len(edges) == 0:
             break
@@ -178,5 +183,58 @@ def coarse_graphs(edges: np.ndarray, num_verts: int, levels: int) -> list[np.nda
         nodes = nodes[centres]
         edges = nodes[np.searchsorted(centres, pairs)] if len(pairs) else pairs
         edges = np.sort(edges, axis=1)
-        out.append(edges)
+        out.append((nodes, edges))
     return out
+
+
+def aggregates(edges: np.ndarray, num_verts: int, levels: int) -> np.ndarray:
+    """Partition of a mesh's vertices into connected patches (the coarse space of a two-level solver).
+
+    The seeds are the nodes of `coarse_graphs` level `levels` (about 2^levels edges apart; two
+    levels give patches of 6–15 vertices); every vertex joins its nearest seed by hops through the
+    mesh edges. A connected component without a seed (too small to keep one) and an isolated
+    vertex each become one patch. Deterministic (topology and vertex order only).
+
+    Returns:
+        label (num_verts,) int64: the patch of each vertex, patches numbered 0 … P − 1.
+    """
+    from scipy.sparse.csgraph import connected_components as components
+    from scipy.sparse.csgraph import dijkstra
+
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    hierarchy = _coarse_levels(edges, num_verts, levels)
+    seeds = hierarchy[-1][0] if hierarchy else np.unique(edges)
+    adjacency = vertex_adjacency(num_verts, edges)
+    label = np.full(num_verts, -1, dtype=np.int64)
+    if len(seeds):
+        _, _, cell = dijkstra(adjacency, unweighted=True, indices=seeds, min_only=True, return_predecessors=True)
+        reached = cell >= 0
+        label[reached] = np.searchsorted(seeds, cell[reached])
+    count = len(seeds)
+    if (label < 0).any():  # seedless components and isolated vertices: one patch each
+        _, component = components(adjacency, directed=False)
+        for c in np.unique(component[label < 0]):
+            label[(component == c) & (label < 0)] = count
+            count += 1
+    return label
+
+
+def smoothed_prolongation(edges: np.ndarray, num_verts: int, label: np.ndarray, passes: int):
+    """Prolongation of a two-level solver: each patch's indicator over the vertices, averaged
+    `passes` times over each vertex and its mesh neighbours (smoothed aggregation), rows then
+    rescaled to sum to 1 (a rigid translation of all patches is one of the whole mesh).
+
+    Returns:
+        P: scipy CSR (num_verts, P) ≥ 0, each patch's column a smooth bump around it.
+    """
+    import scipy.sparse as sp
+
+    count = int(label.max()) + 1 if len(label) else 0
+    prolong = sp.csr_matrix((np.ones(num_verts), (np.arange(num_verts), label)), shape=(num_verts, count))
+    if passes:
+        average = vertex_adjacency(num_verts, edges) + sp.eye(num_verts, format="csr")
+        average = sp.diags(1.0 / np.asarray(average.sum(1)).ravel()) @ average
+        for _ in range(passes):
+            prolong = average @ prolong
+        prolong = sp.diags(1.0 / np.asarray(prolong.sum(1)).ravel()) @ prolong
+    return prolong.tocsr()

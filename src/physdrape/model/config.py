@@ -36,8 +36,11 @@ class ModelConfig:
     picked in vertex order, so a model with levels is not exactly equivariant to relabelling).
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
-    solver: "explicit" (the paper's Eq. 10, a scalar compliance) or "jacobi" (block-Jacobi
-    preconditioned, with body contact and a descent safeguard; see `StretchingSolver`).
+    solver: "explicit" (the paper's Eq. 10, a scalar compliance), "jacobi" (block-Jacobi
+    preconditioned, with body contact and a descent safeguard) or "two_level" (conjugate
+    directions, block Jacobi plus a coarse correction on smooth patches, a line search; see
+    `StretchingSolver`). requery_every: solver steps between body queries (jacobi, two_level).
+    coarse_levels / coarse_smoothing: the two_level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver compliance (explicit: [m/N]; jacobi: dimensionless, 1 = a full
     block-Jacobi step) and decay; max_step: the solver's per-vertex step clip [m] (stability
     guard, see `StretchingSolver`); momentum: heavy-ball momentum of the jacobi solver's steps
@@ -59,6 +62,9 @@ class ModelConfig:
     gamma: float = 0.9
     max_step: float = 5e-3
     momentum: float = 0.0
+    requery_every: int = 5
+    coarse_levels: int = 2
+    coarse_smoothing: int = 2
     delta: float = 1.05
     margin: float = 2e-3
     displacement_scale: float = 0.01

@@ -59,7 +59,9 @@ class PhysDrape(nn.Module):
             zero_init_output=config.zero_init_output,
         )
         self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma, max_step=config.max_step, kind=config.solver,
-                                       margin=config.margin, momentum=config.momentum)
+                                       margin=config.margin, momentum=config.momentum,
+                                       requery_every=config.requery_every, coarse_levels=config.coarse_levels,
+                                       coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta)
 
     def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, Tensor]:

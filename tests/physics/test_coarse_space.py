@@ -1,0 +1,106 @@
+"""The coarse level of the two-level preconditioner: P (Pᵀ K P)⁻¹ Pᵀ against dense algebra (float64)."""
+
+import numpy as np
+import pytest
+import torch
+
+from physdrape.geometry import topology
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.primitives import grid_sheet, open_cylinder
+from physdrape.physics import Cloth
+from physdrape.physics.coarse_space import REGULARIZATION, CoarseSpace
+from physdrape.physics.hessians import face_blocks
+
+
+def _batch():
+    sheet = Garment.from_mesh(*grid_sheet(12, 10, width=0.4, height=0.3), name="sheet", dtype=torch.float64)
+    tube = Garment.from_mesh(*open_cylinder(6, 14, radius=0.12, length=0.3), name="tube", dtype=torch.float64)
+    batch = GarmentBatch.pack([sheet, tube])
+    gen = torch.Generator().manual_seed(0)
+    x = batch.rest * 1.05 + 3e-3 * torch.randn(batch.rest.shape, generator=gen, dtype=torch.float64)
+    return batch, Cloth.build(batch), x
+
+
+def _dense_prolongation(batch, levels=2, smoothing=2):
+    parts = []
+    for g in batch.garments:
+        edges = topology.undirected_edges(g.faces.numpy())
+        label = topology.aggregates(edges, g.num_verts, levels)
+        parts.append(topology.smoothed_prolongation(edges, g.num_verts, label, smoothing).toarray())
+    rows = sum(p.shape[0] for p in parts)
+    out, r, c = np.zeros((rows, sum(p.shape[1] for p in parts))), 0, 0
+    for p in parts:
+        out[r:r + p.shape[0], c:c + p.shape[1]] = p
+        r, c = r + p.shape[0], c + p.shape[1]
+    return np.kron(out, np.eye(3)), [p.shape[1] for p in parts]
+
+
+def _dense_stiffness(x, cloth, extra):
+    n = 3 * cloth.num_verts
+    k = np.zeros((n, n))
+    blocks = face_blocks(x, cloth).numpy()
+    for f, face in enumerate(cloth.faces.numpy()):
+        dof = (3 * face[:, None] + np.arange(3)).reshape(-1)
+        k[np.ix_(dof, dof)] += blocks[f]
+    for v in range(cloth.num_verts):
+        k[3 * v:3 * v + 3, 3 * v:3 * v + 3] += extra[v].numpy()
+    return k
+
+
+def _contact_blocks(num_verts, seed=1):
+    """Random rank-1 contact-like blocks k n nᵀ (they pin the rigid motions)."""
+    gen = torch.Generator().manual_seed(seed)
+    normal = torch.nn.functional.normalize(torch.randn(num_verts, 3, generator=gen, dtype=torch.float64), dim=-1)
+    return 40.0 * torch.rand(num_verts, generator=gen, dtype=torch.float64)[:, None, None] * normal[:, :, None] * normal[:, None, :]
+
+
+def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment():
+    batch, cloth, x = _batch()
+    gen = torch.Generator().manual_seed(1)
+    extra = _contact_blocks(cloth.num_verts)
+    coarse = CoarseSpace(cloth)
+    coarse.factor(x, extra)
+    r = torch.randn(cloth.num_verts, 3, generator=gen, dtype=torch.float64)
+    z = coarse.solve(r)
+    p, sizes = _dense_prolongation(batch)
+    k = _dense_stiffness(x, cloth, extra)
+    expected, c0 = np.zeros(3 * cloth.num_verts), 0
+    for size in sizes:  # garment by garment, each with its own regularisation
+        cols = slice(3 * c0, 3 * (c0 + size))
+        kc = p[:, cols].T @ k @ p[:, cols]
+        kc += REGULARIZATION * np.diag(kc).mean() * np.eye(3 * size)
+        expected += p[:, cols] @ np.linalg.solve(kc, p[:, cols].T @ r.numpy().reshape(-1))
+        c0 += size
+    assert coarse.num_patches == sum(sizes)
+    np.testing.assert_allclose(z.numpy().reshape(-1), expected, rtol=1e-8, atol=1e-10 * np.abs(expected).max())
+
+
+def test_coarse_correction_is_differentiable_in_the_forces_and_needs_a_factor():
+    _, cloth, x = _batch()
+    coarse = CoarseSpace(cloth)
+    with pytest.raises(RuntimeError, match="factor"):
+        coarse.solve(torch.zeros(cloth.num_verts, 3, dtype=torch.float64))
+    coarse.factor(x)
+    r = torch.randn(cloth.num_verts, 3, dtype=torch.float64, requires_grad=True)
+    v = torch.randn(cloth.num_verts, 3, dtype=torch.float64)
+    (coarse.solve(r) * v).sum().backward()
+    torch.testing.assert_close(r.grad, coarse.solve(v))  # a symmetric linear map: its own adjoint
+
+
+def test_coarse_space_checks_its_arguments():
+    _, cloth, _ = _batch()
+    with pytest.raises(ValueError, match="levels"):
+        CoarseSpace(cloth, levels=0)
+
+
+def test_a_float32_batch_gets_the_float64_correction_to_float32_precision():
+    batch, cloth, x = _batch()
+    extra = _contact_blocks(cloth.num_verts)
+    reference = CoarseSpace(cloth)
+    reference.factor(x, extra)
+    single = CoarseSpace(Cloth.build(batch.to(torch.float32)))
+    single.factor(x.float(), extra.float())
+    r = torch.randn(cloth.num_verts, 3, dtype=torch.float64)
+    z = single.solve(r.float())
+    assert z.dtype == torch.float32
+    torch.testing.assert_close(z.double(), reference.solve(r), rtol=1e-3, atol=1e-4 * reference.solve(r).abs().max().item())
