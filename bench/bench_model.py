@@ -1,7 +1,7 @@
 """PhysDrape model benchmark: inference per garment and a training step, CPU default vs paper size.
 
 Run: .venv/bin/python bench/bench_model.py [--repeats 5] [--threads 0] [--sizes 32x4 32x4l4 128x16]
-    [--solvers explicit jacobi]
+    [--solvers explicit jacobi two_level]
 (a size is latent x blocks, optionally l + coarse graph levels; a solver is the stretching
 solver's kind, `model.stretching_solver.SolverKind`).
 Garments: open tubes of ~4k vertices; bodies: icospheres of ~10k vertices (the body query cost
@@ -45,7 +45,7 @@ def main() -> None:
     parser.add_argument("--verts", type=int, default=4000)
     parser.add_argument("--sizes", nargs="+", default=["32x4", "32x4l4", "64x8", "128x16"],
                         help="latent x blocks [l levels], e.g. 32x4l4")
-    parser.add_argument("--solvers", nargs="+", default=["explicit", "jacobi"], help="stretching solver kinds")
+    parser.add_argument("--solvers", nargs="+", default=["explicit", "jacobi", "two_level"], help="stretching solver kinds")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -60,8 +60,9 @@ def main() -> None:
         latent, blocks = (int(v) for v in dims.split("x"))
         levels = int(levels or 0)
         torch.manual_seed(0)
-        eta = 1.0 if solver == "jacobi" else ModelConfig.eta  # each kind's own scale (configs/cpu_jacobi.yaml)
-        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, solver=solver, eta=eta))
+        # each kind's own scale and settings (configs/cpu_jacobi_zero.yaml, configs/cpu_two_level.yaml)
+        kind = {"explicit": {}, "jacobi": dict(eta=1.0, momentum=0.8), "two_level": dict(eta=1.0, requery_every=3)}[solver]
+        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, solver=solver, **kind))
         model.accumulate_statistics(single)
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-5)
         params = sum(p.numel() for p in model.parameters())

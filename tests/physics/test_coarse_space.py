@@ -104,3 +104,15 @@ def test_a_float32_batch_gets_the_float64_correction_to_float32_precision():
     z = single.solve(r.float())
     assert z.dtype == torch.float32
     torch.testing.assert_close(z.double(), reference.solve(r), rtol=1e-3, atol=1e-4 * reference.solve(r).abs().max().item())
+
+
+def test_an_indefinite_coarse_matrix_is_regularised_until_it_factorises():
+    from physdrape.physics.coarse_space import _regularized_cholesky
+
+    block = torch.diag(torch.tensor([1.0, 2.0, -1e-4], dtype=torch.float64))  # a rounded-negative rigid mode
+    chol = _regularized_cholesky(block)
+    rebuilt = chol @ chol.T
+    assert torch.isfinite(chol).all() and torch.linalg.eigvalsh(rebuilt).min() > 0
+    assert (rebuilt - block).abs().max() < 0.1  # the smallest regularisation that works (1e-4 x mean diag)
+    with pytest.raises(ValueError, match="NaN"):
+        _regularized_cholesky(torch.full((3, 3), float("nan"), dtype=torch.float64))

@@ -39,7 +39,8 @@ from physdrape.physics.hessians import face_blocks
 
 __all__ = ["CoarseSpace"]
 
-#: Regularisation of Pᵀ K P relative to its mean diagonal (a garment the contact does not pin).
+#: Regularisation of Pᵀ K P relative to its mean diagonal (a garment the contact does not pin);
+#: raised ×100 until the factorisation succeeds.
 REGULARIZATION = 1e-6
 
 _CACHE: dict[tuple, sp.csr_matrix] = {}
@@ -56,6 +57,21 @@ def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smooth
         label = topology.aggregates(edges, num_verts, levels)
         _CACHE[key] = topology.smoothed_prolongation(edges, num_verts, label, smoothing)
     return _CACHE[key]
+
+
+def _regularized_cholesky(block: Tensor) -> Tensor:
+    """Cholesky factor of block + r·mean(diag)·I, r = REGULARIZATION, raised ×100 until it factorises
+    (a float32 K rounds its near-null rigid modes to slightly negative)."""
+    if not bool(torch.isfinite(block).all()):
+        raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
+    scale = block.diagonal().mean().clamp_min(1e-300)
+    eye = torch.eye(block.shape[0], dtype=block.dtype)
+    reg = REGULARIZATION
+    while True:
+        chol, info = torch.linalg.cholesky_ex(block + reg * scale * eye)
+        if int(info) == 0 or reg >= 1.0:
+            return chol if int(info) == 0 else torch.linalg.cholesky(block + scale * eye)
+        reg *= 100.0
 
 
 class CoarseSpace:
@@ -117,11 +133,8 @@ class CoarseSpace:
         n = 3 * self.cloth.num_verts
         stiffness = sp.bsr_matrix((blocks.numpy(), self._pair_cols, self._pair_indptr), shape=(n, n))
         coarse = (self._p3_t @ (stiffness @ self._p3)).tocsr()
-        self._factors = []
-        for c0, c1 in self._coarse_ranges:
-            block = torch.from_numpy(coarse[c0:c1, c0:c1].toarray())
-            block = block + REGULARIZATION * block.diagonal().mean().clamp_min(1e-300) * torch.eye(c1 - c0, dtype=block.dtype)
-            self._factors.append(torch.linalg.cholesky(block))
+        self._factors = [_regularized_cholesky(torch.from_numpy(coarse[c0:c1, c0:c1].toarray()))
+                         for c0, c1 in self._coarse_ranges]
 
     def solve(self, r: Tensor) -> Tensor:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""
