@@ -25,15 +25,15 @@ def anny_cmu_body():
 
 def write_tiny_checkpoint(run_dir) -> str:
     """A 1-block, width-8 PhysDrape whose decoder outputs zero (Δx = 0, f̂ = 0): the drape is X_init
-    relaxed by the block-Jacobi stretching solver (the shipped model's kind) plus the collision
-    handler, so material effects are the physics' own and deterministic."""
+    relaxed by the two-level stretching solver (the shipped model's kind and settings) plus the
+    collision handler, so material effects are the physics' own and deterministic."""
     from physdrape.config_io import to_mapping
     from physdrape.model import PhysDrape
     from physdrape.model.config import ModelConfig
     from physdrape.train.checkpoint import save_checkpoint
 
     torch.manual_seed(0)
-    config = ModelConfig(latent=8, blocks=1, solver="jacobi", eta=1.0, gamma=0.98, max_step=0.01)
+    config = ModelConfig(latent=8, blocks=1, solver="two_level", eta=1.0, gamma=0.98, max_step=0.01, requery_every=3)
     model = PhysDrape(config)
     last = [m for m in model.gnn.decoder.modules() if isinstance(m, torch.nn.Linear)][-1]
     torch.nn.init.zeros_(last.weight)
