@@ -75,8 +75,8 @@ class StretchingSolver(nn.Module):
             clip(η γ^t K⁻¹F + β·(last accepted move)) and falls back to the plain step (a restart)
             where that does not lower Φ. Jacobi steps relax a garment's short wavelengths at once
             and its long ones (the garment riding up or sliding down as a whole) slowly; momentum
-            carries those along (the 8 evaluation instances, no network, T = 15: E_strain
-            0.079 J at β = 0, 0.064 J at β = 0.8).
+            carries those along (the 8 evaluation instances, no network, T = 15, with the fifth
+            session's S⁺ blocks: E_strain 0.079 J at β = 0, 0.064 J at β = 0.8).
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
             their body plane than this get the penalty's stiffness at depth ε (`_Relaxation`).

@@ -68,12 +68,12 @@ def _regularized_cholesky(block: Tensor) -> Tensor:
         raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
     scale = block.diagonal().mean().clamp_min(1e-300)
     eye = torch.eye(block.shape[0], dtype=block.dtype)
-    reg = REGULARIZATION
-    while True:
-        chol, info = torch.linalg.cholesky_ex(block + reg * scale * eye)
-        if int(info) == 0 or reg >= 1.0:
-            return chol if int(info) == 0 else torch.linalg.cholesky(block + scale * eye)
-        reg *= 100.0
+    for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
+        chol, info = torch.linalg.cholesky_ex(block + REGULARIZATION * 100.0 ** attempt * scale * eye)
+        if int(info) == 0:
+            return chol
+    raise ValueError("CoarseSpace.factor: the coarse stiffness is not positive semi-definite even with a "
+                     "regularisation of its mean diagonal (K must be a PSD majorant)")
 
 
 class CoarseSpace:
