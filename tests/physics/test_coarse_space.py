@@ -116,3 +116,13 @@ def test_an_indefinite_coarse_matrix_is_regularised_until_it_factorises():
     assert (rebuilt - block).abs().max() < 0.1  # the smallest regularisation that works (1e-4 x mean diag)
     with pytest.raises(ValueError, match="NaN"):
         _regularized_cholesky(torch.full((3, 3), float("nan"), dtype=torch.float64))
+
+
+def test_a_large_garment_is_coarsened_further_to_keep_the_coarse_factor_small():
+    from physdrape.physics.coarse_space import MAX_PATCHES
+
+    sheet = Garment.from_mesh(*grid_sheet(90, 90, width=1.0, height=1.0), dtype=torch.float64)  # 8,100 vertices
+    edges = topology.undirected_edges(sheet.faces.numpy())
+    assert topology.aggregates(edges, sheet.num_verts, 2).max() + 1 > MAX_PATCHES  # not vacuous
+    coarse = CoarseSpace(Cloth.build(sheet))
+    assert MAX_PATCHES / 5 < coarse.num_patches <= MAX_PATCHES
