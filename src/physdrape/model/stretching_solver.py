@@ -159,8 +159,8 @@ class StretchingSolver(nn.Module):
             if bodies is not None and t % self.requery_every == 0:
                 problem.requery(x, bodies, body_index)
                 phi = None
-            force, depth = problem.force(x)
-            chol = self._stiffness_factor(x.detach(), cloth, problem.contact_blocks(x, depth))
+            force, distance = problem.force(x)
+            chol = self._stiffness_factor(x.detach(), cloth, problem.contact_blocks(distance))
             plain = step * torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1)
             # the heavy-ball candidate first (if any), then the plain step (a restart of the momentum)
             candidates = [self._clip(plain + self.momentum * velocity)] if velocity is not None else []
@@ -194,8 +194,8 @@ class StretchingSolver(nn.Module):
             if bodies is not None and refresh:
                 problem.requery(x, bodies, body_index)
                 phi = None
-            force, depth = problem.force(x)
-            contact = problem.contact_blocks(x, depth)
+            force, distance = problem.force(x)
+            contact = problem.contact_blocks(distance)
             if refresh:
                 coarse.factor(x, contact)
             chol = self._stiffness_factor(x.detach(), cloth, contact)
@@ -314,11 +314,16 @@ class _Relaxation:
             q = bodies.query(self._samples(x.detach()), body_index=body_index)
         self.planes = (q.closest.to(x.dtype), q.normal.to(x.dtype))
 
-    def depth(self, x: Tensor) -> Tensor | None:
-        """ReLU(ε − d) per sample (vertices, then centroids), or None without planes."""
+    def distance(self, x: Tensor) -> Tensor | None:
+        """d per sample (vertices, then centroids) above its held plane [m], or None without planes."""
         if self.planes is None:
             return None
-        return (self.margin - ((self._samples(x) - self.planes[0]) * self.planes[1]).sum(-1)).clamp_min(0.0)
+        return ((self._samples(x) - self.planes[0]) * self.planes[1]).sum(-1)
+
+    def depth(self, x: Tensor) -> Tensor | None:
+        """ReLU(ε − d) per sample, or None without planes."""
+        distance = self.distance(x)
+        return None if distance is None else (self.margin - distance).clamp_min(0.0)
 
     def potential(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J]."""
@@ -340,23 +345,25 @@ class _Relaxation:
         return per_sample[:num_verts].index_add(0, faces.reshape(-1), corner)
 
     def force(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
-        """(−∇Φ (V, 3) [N], the contact depth per sample or None)."""
+        """(−∇Φ (V, 3) [N], each sample's distance d to its plane or None)."""
         force = internal_forces(x, self.cloth)
-        depth = self.depth(x)
-        if depth is not None:
+        distance = self.distance(x)
+        if distance is not None:
+            depth = (self.margin - distance).clamp_min(0.0)
             force = force + self._to_vertices((3.0 * self.stiffness * depth * depth)[:, None] * self.planes[1])
         if self.f_hat is not None:
             force = force + self.f_hat
-        return force, depth
+        return force, distance
 
-    def contact_blocks(self, x: Tensor, depth: Tensor | None) -> Tensor | None:
+    def contact_blocks(self, distance: Tensor | None) -> Tensor | None:
         """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) (a centroid's 1/9 on each
-        corner's diagonal), samples within `band` of their plane at depth ≥ ε; or None."""
-        if depth is None:
+        corner's diagonal) from the samples' distances d, samples within `band` of their plane at
+        depth ≥ ε; or None."""
+        if distance is None:
             return None
-        depth = depth.detach()
+        distance = distance.detach()
+        depth = (self.margin - distance).clamp_min(0.0)
         if self.band > 0:
-            distance = ((self._samples(x.detach()) - self.planes[0]) * self.planes[1]).sum(-1)
             depth = torch.where(distance < self.band, depth.clamp_min(self.margin), depth)
         normal = self.planes[1]
         blocks = (6.0 * self.stiffness * depth)[:, None, None] * normal[:, :, None] * normal[:, None, :]

@@ -46,9 +46,9 @@ __all__ = ["CoarseSpace"]
 REGULARIZATION = 1e-6
 
 #: Most patches of one garment: a larger garment gets more coarsening levels, so that its dense
-#: coarse factor stays small (600 patches: a 1,800² Cholesky, ~60 ms). Every garment of the
-#: training and test splits (at most 270 patches at 2 levels) and four of the five CC0 suits
-#: (328–516) are below it; the 9.7k-vertex male_casualsuit05 (651) gets a third level.
+#: coarse factor stays small (600 patches: an 1,800 × 1,800 Cholesky per refresh). Every garment
+#: of the training and test splits (at most 270 patches at 2 levels) and four of the five CC0
+#: suits (328–516) are below it; the 9.7k-vertex male_casualsuit05 (651) gets a third level.
 MAX_PATCHES = 600
 
 _CACHE: dict[tuple, sp.csr_matrix] = {}
