@@ -137,7 +137,13 @@ def test_projected_hessians_are_psd(small_cloth):
 def test_solve_with_held_vertices_matches_dense_reduced_system():
     import scipy.sparse as sp
 
-    from physdrape.physics.oracle import LinearSolver, _diagonal_positions, _resolve_solver, _solve_fixed
+    from physdrape.physics.oracle import (
+        LinearSolver,
+        _diagonal_positions,
+        _resolve_solver,
+        _solve_fixed,
+        _SparseSolver,
+    )
 
     rng = np.random.default_rng(5)
     n_verts = 6
@@ -151,8 +157,42 @@ def test_solve_with_held_vertices_matches_dense_reduced_system():
     expected = np.zeros_like(rhs)
     expected[keep] = np.linalg.solve(dense[np.ix_(keep, keep)], rhs[keep])
     for solver in {_resolve_solver("auto"), LinearSolver.SUPERLU}:
-        out = _solve_fixed(lower, _diagonal_positions(lower), rhs, fixed, solver)
+        out = _solve_fixed(lower, _diagonal_positions(lower), rhs, fixed, _SparseSolver(solver))
         np.testing.assert_allclose(out, expected, rtol=1e-10, atol=1e-12)
+
+
+def test_cholmod_refactors_on_a_repeated_pattern_reanalyses_a_new_one_and_rejects_indefinite():
+    pytest.importorskip("cvxopt")
+    import scipy.sparse as sp
+
+    from physdrape.physics.oracle import LinearSolver, _diagonal_positions, _SparseSolver
+
+    rng = np.random.default_rng(5)
+    solver = _SparseSolver(LinearSolver.CHOLMOD)
+
+    def system(n, density):
+        a = sp.random(n, n, density=density, random_state=rng) + sp.eye(n)
+        dense = (a @ a.T).toarray() + np.eye(n)
+        lower = sp.csc_matrix(np.tril(dense))
+        lower.sort_indices()
+        return dense, lower
+
+    rhs = rng.standard_normal(12)
+    dense, lower = system(12, 0.2)
+    np.testing.assert_allclose(solver.solve(lower, rhs), np.linalg.solve(dense, rhs), rtol=1e-10)
+    symbolic = solver._symbolic
+    scaled = lower.copy()
+    scaled.data = 2.0 * lower.data  # same pattern, new values: numeric refactorisation only
+    np.testing.assert_allclose(solver.solve(scaled, rhs), np.linalg.solve(2.0 * dense, rhs), rtol=1e-10)
+    assert solver._symbolic is symbolic
+    dense2, lower2 = system(12, 0.5)  # another pattern: analysed again
+    np.testing.assert_allclose(solver.solve(lower2, rhs), np.linalg.solve(dense2, rhs), rtol=1e-10)
+    assert solver._symbolic is not symbolic
+    indefinite = lower2.copy()
+    indefinite.data[_diagonal_positions(indefinite)] -= 2.0 * np.abs(dense2).sum()
+    with pytest.raises(ValueError, match="not positive definite"):
+        solver.solve(indefinite, rhs)
+    np.testing.assert_allclose(solver.solve(lower2, rhs), np.linalg.solve(dense2, rhs), rtol=1e-10)  # still usable
 
 
 def test_project_psd_keeps_psd_matrices():

@@ -34,7 +34,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     ablation = dict(args.ablation or [])
     config = EvalConfig(
         instances=args.instances, seed=args.seed, oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget,
-        oracle_tol=args.oracle_tol, split_dir=args.split_dir or "", max_garments=args.max_garments,
+        oracle_tol=args.oracle_tol, oracle_refine=not args.no_oracle_refine, split_dir=args.split_dir or "", max_garments=args.max_garments,
         makehuman_dir=args.makehuman or "", makehuman_max_verts=args.makehuman_max_verts, dtype=args.dtype, threads=args.threads,
     )
     command = shlex.join(sys.argv)
@@ -56,9 +56,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--oracle-budget", type=float, default=60.0, help="oracle wall-time budget per instance [s]")
     p.add_argument("--oracle-tol", type=float, default=1e-2, help="oracle residual tolerance (|F|/(m g))")
     p.add_argument("--no-oracle", action="store_true", help="skip the oracle (no ratio columns)")
+    p.add_argument("--no-oracle-refine", action="store_true",
+                   help="do not also run the oracle from the PhysDrape (T=15) drape (ratios then use the oracle alone)")
     p.add_argument("--makehuman", metavar="DIR", help="also evaluate the CC0 MakeHuman garments (.mhclo) in DIR")
-    p.add_argument("--makehuman-max-verts", type=int, default=6000,
-                   help="skip MakeHuman garments with more vertices (memory of the body queries; 0: no cap)")
+    p.add_argument("--makehuman-max-verts", type=int, default=0,
+                   help="skip MakeHuman garments with more vertices (0: no cap)")
     p.add_argument("--ablation", action="append", type=_ablation_pair, metavar="NAME=DIR",
                    help="a separately trained checkpoint for Table 2 (NAME: gnn, gnn+solver, gnn+collision, full)")
     p.add_argument("--split-dir", help="garment split directory (default: the cached seed-0 split)")
