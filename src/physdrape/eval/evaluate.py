@@ -129,12 +129,13 @@ class EvalConfig:
     """instances: test instances N; seed: of the body shapes/poses (and instance layout);
     oracle: run the oracle; oracle_budget_s: its wall-time budget per instance [s]; oracle_tol:
     its residual tolerance; oracle_max_iters: its iteration cap; oracle_refine: also run the
-    oracle from the PhysDrape (T=15) drape, and measure against the better of the two; split_dir / max_garments: the
-    garment split ("" = default cache) and its first N test garments (0 = all); makehuman_dir:
-    CC0 MakeHuman garments (.mhclo), "" = skip; makehuman_instances: bodies per MakeHuman
-    garment; makehuman_max_verts: skip MakeHuman garments with more vertices (0 = no cap; the
-    largest CC0 suit, 9.7k vertices, peaks at 1.9 GiB with the oracle); dtype: of garments, bodies and physics ("float32"/"float64"; the network keeps its
-    own); threads: torch threads (1 was fastest on the shared CPU)."""
+    oracle from the PhysDrape (T=15) drape and measure against the better of the two;
+    split_dir / max_garments: the garment split ("" = default cache) and its first N test
+    garments (0 = all); makehuman_dir: CC0 MakeHuman garments (.mhclo), "" = skip;
+    makehuman_instances: bodies per MakeHuman garment; makehuman_max_verts: skip MakeHuman
+    garments with more vertices (0 = no cap; the largest CC0 suit, 9.7k vertices, peaks at
+    1.9 GiB with the oracle); dtype: of garments, bodies and physics ("float32"/"float64"; the
+    network keeps its own); threads: torch threads (1 was fastest on the shared CPU)."""
 
     instances: int = 10
     seed: int = 0
@@ -383,12 +384,11 @@ def _oracle_summary(records: list[dict]) -> dict:
 
 
 def _reference(oracle: list[dict], refined: list[dict]) -> list[dict]:
-    """Per instance the oracle result with the lower E_total (ties: the skinned start), tagged
-    with its start; without refinement, the oracle's own records."""
+    """Per instance the oracle result with the lower E_total (ties: the oracle's), tagged with
+    its source ("oracle" or "oracle_refined"); without refinement, the oracle's own records."""
     if not refined:
-        return [{**r, "start": "skinned"} for r in oracle]
-    return [{**(b if b["energy_total"] < a["energy_total"] else a),
-             "start": "physdrape_t15" if b["energy_total"] < a["energy_total"] else "skinned"}
+        return [{**r, "source": "oracle"} for r in oracle]
+    return [{**b, "source": "oracle_refined"} if b["energy_total"] < a["energy_total"] else {**a, "source": "oracle"}
             for a, b in zip(oracle, refined, strict=True)]
 
 
@@ -409,7 +409,7 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
         start.append({**_metrics(batch.x_init, batch), "wall_s": init_s})
         if skinned is not None:
             plain.append({**_metrics(skinned, batch), "wall_s": 0.0})
-        drapes = {}
+        to_refine = None
         for key, (model_key, steps, network) in rows.items():
             x, wall = run_model(models[model_key], batch, steps=steps, network=network)
             rec = _metrics(x, batch)
@@ -417,13 +417,13 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
             rec["model_wall_s"] = wall
             per_row[key].append(rec)
             if refine and key == REFINED_ROW:
-                drapes[key] = x
+                to_refine = x
         line = f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment} ({inst.num_verts} verts)"
         if config.oracle:
             oracle.append(_oracle_record(run_oracle(batch, config, skinned), batch))
             line += f": oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s"
         if refine:
-            rec = _oracle_record(run_oracle(batch, config, drapes.pop(REFINED_ROW)), batch)
+            rec = _oracle_record(run_oracle(batch, config, to_refine), batch)
             rec["oracle_wall_s"] = rec["wall_s"]
             rec["wall_s"] += per_row[REFINED_ROW][-1]["wall_s"]  # the drape it polishes is part of its cost
             refined.append(rec)
@@ -433,7 +433,7 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
     reference = _reference(oracle, refined) if oracle else []
     ref_summary = _oracle_summary(reference) if reference else None
     if ref_summary is not None:
-        ref_summary["from_refinement"] = sum(r["start"] != "skinned" for r in reference)
+        ref_summary["from_refinement"] = sum(r["source"] == "oracle_refined" for r in reference)
     result = {
         "instances": [{"index": i.index, "garment": i.garment, "garment_index": i.garment_index,
                        "body_index": i.body_index, "num_verts": i.num_verts} for i in instances],
