@@ -18,7 +18,9 @@ Method (projected Newton, float64 throughout):
    (``projection="always"`` throughout). Measured on a 4.7k-vertex top (bench/bench_oracle.py,
    one thread, shared 2-core CPU): classic projected Newton (autograd bending, always projected)
    248 iterations / 116 s to the tolerance; Gauss-Newton bending, always projected 89 / 49 s;
-   Gauss-Newton + auto (the defaults) 76 / 29–43 s, ending at 6e-4 instead of 1e-2.
+   Gauss-Newton + auto (the defaults) 76 / 29–43 s, ending at 6e-4 instead of 1e-2. Re-measured
+   in the seventh session, with the face-centroid contact and CHOLMOD: 210 / 39 s to 9.4e-3 (the
+   generated 4.9k-vertex Anny T-shirt from its template: 40 / 7.9 s).
 2. Contact:
    - ``penalty``: E_c = k_c Σ ReLU(ε − d_i)³ over the vertices and the face centroids, with d
      from `BodySurface` (closest point and normal held fixed for the Hessian: 6 k_c ReLU(ε − d)
