@@ -30,8 +30,10 @@ def parser():
 def test_flags_parse():
     args = parser().parse_args(["eval", "--checkpoint", "c", "--out", "o", "--instances", "3", "--seed", "7",
                                 "--oracle-budget", "5", "--no-oracle", "--ablation", "gnn=a", "--ablation",
-                                "gnn+solver=b", "--split-dir", "s", "--max-garments", "2", "--makehuman", "m"])
+                                "gnn+solver=b", "--split-dir", "s", "--max-garments", "2", "--makehuman", "m",
+                                "--no-oracle-refine"])
     assert args.instances == 3 and args.seed == 7 and args.oracle_budget == 5.0 and args.no_oracle
+    assert args.no_oracle_refine and args.makehuman_max_verts == 0
     assert dict(args.ablation) == {"gnn": "a", "gnn+solver": "b"}
     assert args.split_dir == "s" and args.max_garments == 2 and args.makehuman == "m"
 
