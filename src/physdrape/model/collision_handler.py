@@ -1,4 +1,5 @@
-"""The learnable collision handler (paper Eq. 11): push vertices out along the body normal."""
+"""The learnable collision handler (paper Eq. 11): push vertices out along the body normal, then
+the faces whose centroids still dip into the body."""
 
 from __future__ import annotations
 
@@ -13,33 +14,62 @@ from physdrape.physics.collision import DEFAULT_MARGIN
 
 
 class CollisionHandler(nn.Module):
-    """x*_i = x_i + δ · ReLU(ε − d_i) · n_i with δ = 1 + softplus(ρ) ≥ 1.
+    """x*_i = x_i + δ · ReLU(ε − d_i) · n_i with δ = 1 + softplus(ρ) ≥ 1; then a centroid pass.
 
     d_i and n_i come from the exact closest point on the posed body triangles. Which triangle is
     closest is not differentiated; x* is differentiable in x (and δ).
 
+    The paper's handler moves vertices only. A large triangle over a convex part of the body can
+    have all three vertices ε outside and its interior inside: on the CC0 MakeHuman suits, 9–102
+    faces with edges up to 8 cm had centroids up to 1.2 mm deep while no vertex was inside. The
+    centroid pass (when `faces` are given and ε_c > 0) takes each face whose centroid c_f is
+    closer than ε_c to the body, with push p_f = ε_c − d(c_f) along the normal n_f there, and
+    moves each of its vertices by max_f p_f along the p-weighted mean direction of its faces'
+    n_f. Pushes are outward, so no vertex comes closer than ε.
+
     Args:
         margin: ε [m]; a vertex ends at least ε outside the body along n when δ ≥ 1.
         delta: initial δ (> 1).
+        centroid_margin: ε_c [m] of the centroid pass (0: off, the paper's handler).
     """
 
-    def __init__(self, *, margin: float = DEFAULT_MARGIN, delta: float = 1.05) -> None:
+    def __init__(self, *, margin: float = DEFAULT_MARGIN, delta: float = 1.05, centroid_margin: float = 0.0) -> None:
         super().__init__()
-        if not margin > 0 or not delta > 1:
-            raise ValueError(f"need margin > 0 and delta > 1, got margin={margin}, delta={delta}")
+        if not margin > 0 or not delta > 1 or not centroid_margin >= 0:
+            raise ValueError(f"need margin > 0, delta > 1 and centroid_margin ≥ 0, got margin={margin}, "
+                             f"delta={delta}, centroid_margin={centroid_margin}")
         self.margin = margin
+        self.centroid_margin = centroid_margin
         self.delta_raw = nn.Parameter(torch.tensor(math.log(math.expm1(delta - 1.0))))
 
     @property
     def delta(self) -> Tensor:
         return 1.0 + F.softplus(self.delta_raw)
 
-    def forward(self, x: Tensor, bodies: BodySurface, body_index: Tensor, *, delta: Tensor | float | None = None) -> Tensor:
-        """Project x (ΣV, 3) [m] out of the bodies; `body_index` (ΣV,) names each vertex's body.
+    def forward(self, x: Tensor, bodies: BodySurface, body_index: Tensor, *, delta: Tensor | float | None = None,
+                faces: Tensor | None = None) -> Tensor:
+        """Project x (ΣV, 3) [m] out of the bodies; `body_index` (ΣV,) names each vertex's body;
+        `faces` (ΣF, 3) (global vertex indices) enable the centroid pass.
 
         `delta` overrides the learned δ (the Post-Col ablation uses a plain δ = 1).
         """
         query = bodies.query(x, body_index=body_index)
         delta = self.delta.to(x.dtype) if delta is None else delta
         push = delta * (self.margin - query.signed_distance).clamp_min(0.0)
-        return x + push[:, None] * query.normal
+        x = x + push[:, None] * query.normal
+        if faces is not None and self.centroid_margin > 0:
+            x = self._push_centroids(x, faces, bodies, body_index)
+        return x
+
+    def _push_centroids(self, x: Tensor, faces: Tensor, bodies: BodySurface, body_index: Tensor) -> Tensor:
+        query = bodies.query(x[faces].mean(dim=1), body_index=body_index[faces[:, 0]])
+        push = (self.centroid_margin - query.signed_distance).clamp_min(0.0)
+        hit = push > 0
+        if not bool(hit.any()):
+            return x
+        verts = faces[hit].reshape(-1)
+        p = push[hit].repeat_interleave(3)
+        size = torch.zeros(x.shape[0], dtype=x.dtype).scatter_reduce(0, verts, p, "amax", include_self=True)
+        weighted = (push[hit, None] * query.normal[hit]).repeat_interleave(3, dim=0)
+        direction = F.normalize(torch.zeros_like(x).index_add(0, verts, weighted), dim=1)
+        return x + size[:, None] * direction

@@ -45,7 +45,9 @@ class ModelConfig:
     block-Jacobi step) and decay; max_step: the solver's per-vertex step clip [m] (stability
     guard, see `StretchingSolver`); momentum: heavy-ball momentum of the jacobi solver's steps
     (0 = none). delta: initial handler push factor.
-    margin: collision margin ε [m]. displacement_scale: metres per unit of the decoder's Δx.
+    margin: collision margin ε [m]. centroid_margin: ε_c [m] of the handler's centroid pass (faces
+    whose centroid is closer to the body are pushed out; 0 = the paper's vertex-only handler; see
+    `CollisionHandler`). displacement_scale: metres per unit of the decoder's Δx.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -67,6 +69,7 @@ class ModelConfig:
     coarse_smoothing: int = 2
     delta: float = 1.05
     margin: float = 2e-3
+    centroid_margin: float = 5e-4
     displacement_scale: float = 0.01
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL

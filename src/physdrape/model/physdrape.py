@@ -62,7 +62,7 @@ class PhysDrape(nn.Module):
                                        margin=config.margin, momentum=config.momentum,
                                        requery_every=config.requery_every, coarse_levels=config.coarse_levels,
                                        coarse_smoothing=config.coarse_smoothing)
-        self.handler = CollisionHandler(margin=config.margin, delta=config.delta)
+        self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)
 
     def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, Tensor]:
         """Raw (un-normalised) node and edge features at X_init, in the network's dtype, and the
@@ -116,7 +116,7 @@ class PhysDrape(nn.Module):
             x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
                             bodies=batch.bodies, body_index=batch.body_index)
         if cfg.variant.uses_handler:
-            x = self.handler(x, batch.bodies, batch.body_index)
+            x = self.handler(x, batch.bodies, batch.body_index, faces=batch.garments.faces)
         elif cfg.variant is Variant.POST_COL and not self.training:
-            x = self.handler(x, batch.bodies, batch.body_index, delta=1.0)
+            x = self.handler(x, batch.bodies, batch.body_index, delta=1.0, faces=batch.garments.faces)
         return DrapeOutput(x=x, x_gnn=x_gnn, f_hat=f_hat, trace=tuple(trace))
