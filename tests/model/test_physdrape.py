@@ -104,6 +104,9 @@ def test_after_the_handler_no_vertex_is_closer_than_the_margin(two_tubes, varian
     after = batch.bodies.query(out.x, body_index=batch.body_index)
     assert after.signed_distance.min() >= model.config.margin * (1 - 1e-4)
     assert not after.inside.any()
+    faces = batch.garments.faces  # and after the (one-shot) centroid pass no face centroid is inside
+    centroids = batch.bodies.query(out.x[faces].mean(dim=1), body_index=batch.body_index[faces[:, 0]])
+    assert centroids.signed_distance.min() > 0 and not centroids.inside.any()
 
 
 def test_variants_switch_modules(two_tubes):

@@ -25,7 +25,9 @@ class CollisionHandler(nn.Module):
     centroid pass (when `faces` are given and ε_c > 0) takes each face whose centroid c_f is
     closer than ε_c to the body, with push p_f = ε_c − d(c_f) along the normal n_f there, and
     moves each of its vertices by max_f p_f along the p-weighted mean direction of its faces'
-    n_f. Pushes are outward, so no vertex comes closer than ε.
+    n_f. One pass: a lone face's centroid ends at ε_c; where pushed faces share vertices and
+    their normals differ, a centroid can end between 0 and ε_c. Pushes are outward, so no vertex
+    comes closer than ε.
 
     Args:
         margin: ε [m]; a vertex ends at least ε outside the body along n when δ ≥ 1.

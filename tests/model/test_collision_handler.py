@@ -1,0 +1,74 @@
+"""The collision handler's centroid pass: large faces whose interior dips into the body."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from physdrape.geometry.proximity import BodySurface
+from physdrape.model.collision_handler import CollisionHandler
+
+RADIUS = 0.1
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
+    return BodySurface(torch.tensor(np.asarray(mesh.vertices)), torch.tensor(np.asarray(mesh.faces)))
+
+
+def chord_triangle(height: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """A horizontal equilateral triangle centred over the sphere's pole at `height`, its
+    vertices 5 cm from the axis: they are outside the sphere, its centroid is inside when
+    height < RADIUS."""
+    angles = torch.tensor([0.0, 2 * np.pi / 3, 4 * np.pi / 3], dtype=torch.float64)
+    x = torch.stack([0.05 * torch.cos(angles), torch.full_like(angles, height), 0.05 * torch.sin(angles)], dim=1)
+    return x, torch.tensor([[0, 1, 2]])
+
+
+def test_the_centroid_pass_lifts_a_face_whose_interior_is_inside(sphere):
+    x, faces = chord_triangle(0.097)
+    body_index = torch.zeros(3, dtype=torch.int64)
+    assert bool(sphere.query(x.mean(0, keepdim=True), body_index=body_index[:1]).inside.all())
+    assert sphere.query(x, body_index=body_index).signed_distance.min() > 2e-3  # vertices clear of ε
+    handler = CollisionHandler(margin=2e-3, centroid_margin=5e-4).double()
+    with torch.no_grad():
+        out = handler(x, sphere, body_index, faces=faces)
+    centroid = sphere.query(out.mean(0, keepdim=True), body_index=body_index[:1])
+    assert not bool(centroid.inside.any())
+    assert float(centroid.signed_distance[0]) == pytest.approx(5e-4, abs=2e-5)  # pushed just to ε_c
+    # one face: all three vertices take its push, along the body normal at the centroid (up, up
+    # to the tilt of the icosphere's facet there)
+    shift = out - x
+    torch.testing.assert_close(shift, shift[:1].expand(3, 3), rtol=1e-9, atol=0)
+    assert float(shift[0, 1]) > 2e-3 and float(shift[0, [0, 2]].norm()) < 0.1 * float(shift[0, 1])
+
+
+def test_without_faces_or_with_a_zero_centroid_margin_it_is_the_vertex_handler(sphere):
+    x, faces = chord_triangle(0.097)
+    body_index = torch.zeros(3, dtype=torch.int64)
+    plain = CollisionHandler(margin=2e-3, centroid_margin=0.0).double()
+    with_pass = CollisionHandler(margin=2e-3, centroid_margin=5e-4).double()
+    reference = plain(x, sphere, body_index)
+    torch.testing.assert_close(plain(x, sphere, body_index, faces=faces), reference)
+    torch.testing.assert_close(with_pass(x, sphere, body_index), reference)
+    clear, _ = chord_triangle(0.12)  # nothing near the body: nothing moves
+    torch.testing.assert_close(with_pass(clear, sphere, body_index, faces=faces), clear)
+
+
+def test_the_centroid_pass_is_differentiable_and_only_pushes_outward(sphere):
+    x, faces = chord_triangle(0.097)
+    x = x.requires_grad_(True)
+    body_index = torch.zeros(3, dtype=torch.int64)
+    handler = CollisionHandler(margin=2e-3, centroid_margin=5e-4).double()
+    out = handler(x, sphere, body_index, faces=faces)
+    (grad,) = torch.autograd.grad(out[:, 1].sum(), x)
+    assert torch.isfinite(grad).all() and grad.abs().sum() > 0
+    before = sphere.query(x.detach(), body_index=body_index).signed_distance
+    after = sphere.query(out.detach(), body_index=body_index).signed_distance
+    assert bool((after >= before - 1e-12).all())
+
+
+def test_bad_centroid_margin_is_refused():
+    with pytest.raises(ValueError, match="centroid_margin"):
+        CollisionHandler(centroid_margin=-1e-3)
