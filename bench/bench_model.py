@@ -5,7 +5,8 @@ Run: .venv/bin/python bench/bench_model.py [--repeats 5] [--threads 0] [--sizes 
 (a size is latent x blocks, optionally l + coarse graph levels; a solver is the stretching
 solver's kind, `model.stretching_solver.SolverKind`).
 Garments: open tubes of ~4k vertices; bodies: icospheres of ~10k vertices (the body query cost
-is of the order of a real body's). Prints medians (ms) measured side by side in one run.
+is of the order of a real body's). Prints medians (ms) measured side by side in one run; then the
+collision handler alone, with and without its centroid pass.
 """
 
 from __future__ import annotations
@@ -89,6 +90,18 @@ def main() -> None:
             median_ms(lambda: train(eight), args.repeats),
         ]
         print(f"| {latent}×{blocks}, {levels}, {solver} | {params:,} | " + " | ".join(f"{c:.1f} ms" for c in cells) + " |")
+
+    # the collision handler alone: the paper's vertex push, and with the centroid pass
+    handler = PhysDrape(ModelConfig()).handler.eval()
+    x, faces = single.x_init, single.garments.faces
+
+    def handle(with_faces: bool):
+        with torch.no_grad():
+            handler(x, single.bodies, single.body_index, faces=faces if with_faces else None)
+
+    vertex, both = median_ms(lambda: handle(False), args.repeats), median_ms(lambda: handle(True), args.repeats)
+    print("\n| collision handler, batch 1 | ms |\n|---|---:|")
+    print(f"| vertex push (paper Eq. 11) | {vertex:.1f} |\n| + centroid pass (`centroid_margin`) | {both:.1f} |")
 
 
 if __name__ == "__main__":
