@@ -44,6 +44,17 @@ def test_bad_ablation_name_is_a_usage_error(capsys):
     assert "NAME one of" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flags, message", [(["--instances", "0"], "instances must be ≥ 1"),
+                                           (["--makehuman-max-verts", "-1"], "makehuman_max_verts must be ≥ 0")])
+def test_bad_flag_values_exit_2_with_the_message(tmp_path, capsys, flags, message):
+    from physdrape.cli import main
+
+    out = tmp_path / "out"
+    assert main(["eval", "--checkpoint", str(tmp_path), "--out", str(out), *flags]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()  # nothing written
+
+
 def test_tiny_protocol_runs_and_writes_both_files(tmp_path, monkeypatch, anny_body):
     import physdrape.body.anny_body as anny
 
