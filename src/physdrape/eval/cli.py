@@ -37,7 +37,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     try:
         config = EvalConfig(
             instances=args.instances, seed=args.seed, oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget,
-            oracle_tol=args.oracle_tol, oracle_refine=not args.no_oracle_refine, split_dir=args.split_dir or "",
+            oracle_tol=args.oracle_tol, oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine, split_dir=args.split_dir or "",
             max_garments=args.max_garments, makehuman_dir=args.makehuman or "",
             makehuman_max_verts=args.makehuman_max_verts, dtype=args.dtype, threads=args.threads,
         )
@@ -61,6 +61,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the body shapes and poses")
     p.add_argument("--oracle-budget", type=float, default=60.0, help="oracle wall-time budget per instance [s]")
     p.add_argument("--oracle-tol", type=float, default=1e-2, help="oracle residual tolerance (|F|/(m g))")
+    p.add_argument("--oracle-max-iters", type=int, default=200, help="oracle Newton iteration cap per instance")
     p.add_argument("--no-oracle", action="store_true", help="skip the oracle (no ratio columns)")
     p.add_argument("--no-oracle-refine", action="store_true",
                    help="do not also run the oracle from the PhysDrape (T=15) drape (ratios then use the oracle alone)")

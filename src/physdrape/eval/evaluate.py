@@ -159,6 +159,8 @@ class EvalConfig:
             raise ValueError(f"EvalConfig.dtype must be 'float32' or 'float64', got {self.dtype!r}")
         if self.makehuman_max_verts < 0:
             raise ValueError(f"EvalConfig.makehuman_max_verts must be ≥ 0 (0: no cap), got {self.makehuman_max_verts}")
+        if self.oracle_max_iters < 1:
+            raise ValueError(f"EvalConfig.oracle_max_iters must be ≥ 1, got {self.oracle_max_iters}")
         if not self.oracle_budget_s > 0:
             raise ValueError(f"EvalConfig.oracle_budget_s must be > 0, got {self.oracle_budget_s}")
 
