@@ -37,8 +37,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     try:
         config = EvalConfig(
             instances=args.instances, seed=args.seed, oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget,
-            oracle_tol=args.oracle_tol, oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine, split_dir=args.split_dir or "",
-            max_garments=args.max_garments, makehuman_dir=args.makehuman or "",
+            oracle_tol=args.oracle_tol, oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine,
+            split_dir=args.split_dir or "", max_garments=args.max_garments, makehuman_dir=args.makehuman or "",
             makehuman_max_verts=args.makehuman_max_verts, dtype=args.dtype, threads=args.threads,
         )
     except ValueError as exc:  # a bad flag value: exit 2 with the message, no traceback
