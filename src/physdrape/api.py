@@ -114,7 +114,7 @@ class DrapeResult:
         x_init: kinematic initialisation X_init [m], shape (V, 3).
         material: the fabric draped; pose: a label of the body pose.
         metrics: E_strain, E_bend [J, default material], B2G [%], close [%], residual force [N]
-            and relative residual [per vertex weight] (see `physdrape.eval.metrics`).
+            and relative residual [per vertex weight] (see `physdrape.physics.metrics`).
         timings: wall seconds of the batch this garment was draped in, per phase, and
             ``batch_size``; ``per_garment_s`` = total / batch size.
         vertex_residual: ‖F_int‖ / (m_i g) per vertex at X* (V,) (free-hanging parts near 0).
@@ -721,7 +721,7 @@ class Draper:
         the collision handler only). Returns the results and, for jobs of a warm-started motion,
         the blended transforms T(t) (else None) for the next frame."""
         from physdrape.body.model import BodyState
-        from physdrape.eval.metrics import drape_metrics
+        from physdrape.physics.metrics import drape_metrics
         from physdrape.geometry.garment import GarmentBatch
         from physdrape.geometry.proximity import BodySurface
         from physdrape.model import DrapeInput

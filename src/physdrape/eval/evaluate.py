@@ -27,7 +27,7 @@ Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switc
 Table 2 (module ablation: GNN / +solver / +collision / full): from separately trained checkpoints
 when given, otherwise the same switches of the main checkpoint (labelled as such).
 
-Metrics per row and instance: `physdrape.eval.metrics.drape_metrics` (E_strain, E_bend, B2G %,
+Metrics per row and instance: `physdrape.physics.metrics.drape_metrics` (E_strain, E_bend, B2G %,
 close %, residual force) plus the total static energy the oracle minimises (strain + bend +
 gravity + contact penalty) and the wall time. Energies are also given as the ratio of the row's
 mean to the reference's mean over the same instances.
@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from physdrape.eval.metrics import drape_metrics
+from physdrape.physics.metrics import drape_metrics
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.physics import Cloth, Material
 from physdrape.physics.forces import energy_terms

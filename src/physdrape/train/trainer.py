@@ -19,7 +19,7 @@ import torch
 import torch.distributed as dist
 from physdrape.atomic import write_text
 from physdrape.config_io import to_mapping
-from physdrape.eval.metrics import b2g_percent
+from physdrape.physics.metrics import b2g_percent
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape
 from physdrape.model.stretching_solver import SolverKind
 from physdrape.train import checkpoint as ckpt

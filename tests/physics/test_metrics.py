@@ -5,7 +5,7 @@ import pytest
 import torch
 import trimesh
 
-from physdrape.eval.metrics import b2g_percent, drape_metrics
+from physdrape.physics.metrics import b2g_percent, drape_metrics
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.geometry.proximity import BodySurface
