@@ -3,7 +3,8 @@ pass per batch of (shape, pose), medians over repeats.
 
     python bench/bench_body.py [--repeats 20] [--threads 1] [--first-build]
 
---first-build rebuilds Anny's model data in a temporary cache directory (~1 min or more).
+--first-build rebuilds Anny's model data in a temporary cache directory (slow: what a first-ever
+use of the body costs).
 """
 
 from __future__ import annotations

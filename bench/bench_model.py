@@ -61,7 +61,7 @@ def main() -> None:
         latent, blocks = (int(v) for v in dims.split("x"))
         levels = int(levels or 0)
         torch.manual_seed(0)
-        # each kind's own scale and settings (configs/cpu_jacobi_zero.yaml, configs/cpu_two_level.yaml)
+        # each kind's own step scale and settings, as its training configs set them
         kind = {"explicit": {}, "jacobi": dict(eta=1.0, momentum=0.8), "two_level": dict(eta=1.0, requery_every=3)}[solver]
         model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, solver=solver, **kind))
         model.accumulate_statistics(single)

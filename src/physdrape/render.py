@@ -6,8 +6,8 @@
 - `convergence_figure`: energy and total force over the stretching solver steps (paper Fig. 3).
 - `material_sweep_figure`: the same garment and pose in several fabrics side by side (Fig. 6).
 - `compose_gallery`: tiles of those PNGs (``physdrape drape --figures`` writes gallery.png;
-  docs/gallery.png is made by ``physdrape drape --checkpoint runs/cpu_default --pose stand
-  --figures --out /tmp/gallery && cp /tmp/gallery/gallery.png docs/gallery.png``).
+  docs/gallery.png is that file from ``physdrape drape --pose stand --figures --out /tmp/gallery``
+  with the bundled model).
 
 No OpenGL, no display: orthographic camera, per-pixel barycentric interpolation of vertex
 normals and colours, 2× supersampling.

@@ -11,9 +11,9 @@ the skin, two eyeballs and the teeth/tongue block); ``makehuman`` = the full hm0
 `AnnyBody.faces` is the skin only: the largest connected component of the ``anny`` topology,
 13,348 vertices, a closed 2-manifold (0 boundary edges).
 
-The first Anny build of a (rig, topology) takes ~1 min and is cached by Anny on disk
-(``~/.cache/anny`` or ``$ANNY_CACHE_DIR``); later loads take well under a second. This module
-keeps one copy of what it needs per process (`get_anny_body`).
+The first Anny build of a (rig, topology) is slow and is cached by Anny on disk
+(``~/.cache/anny`` or ``$ANNY_CACHE_DIR``); later loads read that cache. This module keeps one
+copy of what it needs per process (`get_anny_body`).
 """
 
 from __future__ import annotations
@@ -354,7 +354,7 @@ class AnnyBody(BodyModel):
         """All 19,158 vertices of the MakeHuman hm08 base mesh (helpers included, no nudity
         edits), shaped, rest pose, PhysDrape frame [m], shape (B, 19158, 3), in hm08 order: the
         positions `.mhclo` garment files bind to. The first call may build Anny's ``makehuman``
-        topology (~1 min, once per machine)."""
+        topology (slow, once per machine; then cached on disk)."""
         check_phenotypes(shape)
         d = _load("anny", "makehuman", False)
         template = d.template.to(shape)

@@ -197,8 +197,8 @@ def arm_torso_penetration(
         points, owner = torch.cat(points), torch.cat(owner)
         if len(points) == 0:
             return torch.zeros(num_bodies, dtype=torch.long)
-        # Accuracy 2 (Warp's default): on this open surface 1.0 misses points at w ~ 0.52 that
-        # the exact (brute-force) winding number counts; 2.0 gave the same counts as it.
+        # Accuracy 2 (Warp's default): on this open surface 1.0 misses points just above
+        # w = 0.5 that the exact (brute-force) winding number counts; 2.0 agrees with it.
         surface = BodySurface(verts, faces, winding_accuracy=2.0)
         inside = surface.query(points, body_index=owner).inside
     return torch.bincount(owner[inside], minlength=num_bodies)

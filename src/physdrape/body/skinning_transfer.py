@@ -22,8 +22,8 @@ Then, for a batch of bodies (``BodyState``), with ``X_temp`` the template:
 
 ``fit`` costs a KD-tree plus a few sparse products (once per garment); ``apply`` is one sparse
 (CSR) x dense product plus an einsum, differentiable w.r.t. the body tensors. The weights are kept
-exactly (no fixed number of influences): truncating smoothed weights to a top-K re-introduced
-tearing between two equidistant limbs in our tests.
+exactly (no fixed number of influences): truncating smoothed weights to a top-K tears the
+garment between two equidistant limbs.
 """
 
 from __future__ import annotations
@@ -81,7 +81,8 @@ def _garment_smoother(faces: np.ndarray, num_verts: int) -> sp.csr_matrix:
 
 
 #: Bound of the first, local strain-limiting stage (plain Jacobi, no contact): the skin itself
-#: stretches ~3x at the armpit under raised arms, and momentum sweeps handle such spikes badly.
+#: stretches severalfold at the armpit under raised arms, and momentum sweeps handle such spikes
+#: badly.
 LOCAL_STRETCH_BOUND = 1.5
 
 
@@ -103,11 +104,11 @@ class SkinningTransfer:
 
     Why a tight bound (1.02) with contact: skinning copies the body's own growth onto the
     garment, so on a taller or wider body than the canonical one the garment is stretched
-    everywhere (test bodies: median principal stretch 1.11-1.20, E_strain 0.94 J mean), while
-    the static equilibrium lets it ride up and hug the body instead (oracle: median 1.05,
-    0.048 J). 60 momentum sweeps pulling every edge back to 1.02 x rest, with the body held out,
-    bring X_init to 0.18 J mean (B2G 0.019 %) in ~0.1 s for a 2-3k-vertex garment
-    (results/eval.md).
+    everywhere, while the static equilibrium lets it ride up and hug the body instead, barely
+    stretched. Pulling every edge back to 1.02 x rest with the body held out brings X_init
+    close to that: the model and its solver start from a nearly unstretched garment that is
+    still outside the body (the "X_init" and "Skinned" rows of `results/eval.md` compare the
+    two starts).
     """
 
     weights: Tensor

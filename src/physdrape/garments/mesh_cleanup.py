@@ -1,10 +1,10 @@
 """Remove the short edges and slivers that a remesher leaves next to fixed boundary polylines.
 
 The remesher keeps each boundary loop on its input polyline, and a polyline cut from the body
-mesh by a contour has irregular spacing: every generated garment had ~50 edges shorter than a
-fifth of the median and triangles of 0.3–2 % of the median area along its openings. Such
-elements carry almost no mass and stiffen the explicit physics (a 0.3 mm edge moved 5 mm
-becomes a 17x stretch). Two passes fix them without changing the topology class:
+mesh by a contour has irregular spacing: along the openings a garment gets edges far shorter
+than the median and triangles of a tiny fraction of the median area. Such elements carry almost
+no mass and stiffen the explicit physics (a 0.3 mm edge whose ends move 5 mm apart is
+stretched 17x). Two passes fix them without changing the topology class:
 
 1. **Edge collapse** of edges shorter than ``min_edge`` (shortest first, an independent set per
    sweep), only where the link condition holds (the mesh stays a manifold with the same loops),

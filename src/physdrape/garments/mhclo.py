@@ -149,8 +149,8 @@ def load_mhclo(
         target_edge: remesh to this edge length [m] (the MakeHuman meshes have 1.4–3 cm
             edges); None keeps the original mesh (then vertices match the .obj one to one).
         resolve_margin: push vertices inside the body or closer than this [m] out to it
-            (`resolve_body_penetration`); None leaves the raw refit. The CC0 female suits
-            are tight: raw, 14-21 % of their area lies inside the canonical body.
+            (`resolve_body_penetration`); None leaves the raw refit. Tight suits refit raw
+            have part of their area inside the body (MakeHuman hides the skin under them).
 
     Returns:
         the garment (y-up metres, on that body).

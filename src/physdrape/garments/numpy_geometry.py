@@ -6,8 +6,7 @@
   float64 closest points).
 
 Torch runs on one thread inside these calls: garment meshes have a few thousand vertices, where
-intra-op threads only add synchronisation (vertex normals of a 3k-vertex garment: 1.2 ms on one
-thread, 30 ms on two cores shared with another job).
+intra-op threads only add synchronisation, which costs more than the work on a busy machine.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from physdrape.geometry import topology
 from physdrape.geometry.mesh import check_mesh
-from physdrape.geometry.normals import vertex_normals  # noqa: F401  (re-exported: its old home)
+from physdrape.geometry.normals import vertex_normals  # noqa: F401  (re-exported beside the garment types)
 
 
 def rest_frames(rest: Tensor, faces: Tensor) -> tuple[Tensor, Tensor]:
@@ -219,7 +219,7 @@ _COARSE_CACHE_SIZE = 4096
 
 
 def _coarse_graphs(garment: Garment, levels: int) -> list[np.ndarray]:
-    """`topology.coarse_graphs` of a garment's edges, cached by topology (a few ms per garment)."""
+    """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across batches)."""
     edges = garment.edges.numpy()
     key = (hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii"), levels)
     if key not in _COARSE_CACHE:

@@ -68,8 +68,8 @@ class SignMethod(str, enum.Enum):
         direction exists there).
     PSEUDO_NORMAL: sign of ``(x - p) . n_pseudo`` at the closest feature (Baerentzen & Aanaes
         2005). Exact for closed, consistently oriented, non-self-intersecting surfaces and
-        cheaper (Anny body, 5k points: 7 vs 11 ms a query, refit 0.3 vs 3.7 ms); wrong where
-        posed limbs interpenetrate or the mesh has holes.
+        cheaper (no winding-number pass per query, a cheaper refit); wrong where posed limbs
+        interpenetrate or the mesh has holes.
     """
 
     WINDING_NUMBER = "winding_number"
@@ -340,9 +340,9 @@ class BodySurface:
             the same result). None = torch's thread count (`torch.get_num_threads()`).
         winding_accuracy: Warp's fast-winding-number accuracy (its ``beta``: a BVH node is
             replaced by its dipole expansion when farther than beta times its radius; larger is
-            more exact and slower). 1.0 gave the same inside flags as 2.0 (Warp's default), 4.0
-            and the brute-force winding number on the Anny body at 2.3x less cost; values below
-            1 misclassify points near the body and are refused.
+            more exact and slower). 1.0 gives the same inside flags on the closed Anny body as
+            2.0 (Warp's default), 4.0 and the brute-force winding number, at less cost; values
+            below 1 misclassify points near the body and are refused.
     """
 
     def __init__(

@@ -1,17 +1,17 @@
 """Strain limiting of a deformed mesh: shorten over-stretched edges toward a bound (Provot 1995).
 
 Linear blend skinning stretches a garment where the body's own skin stretches (armpits and
-shoulders under raised arms: ~3x on the Anny skin), and StVK forces there reach thousands of times
-a vertex's weight. A few Jacobi sweeps of edge projection bring every edge back under
-``max_stretch`` times its rest length, moving both ends of an edge equally along it and averaging
-the corrections per vertex; edges within the bound are untouched, so the rest of the drape keeps
-its skinned shape. Batched over leading dimensions, differentiable (plain torch ops).
+shoulders under raised arms, where the skin stretches severalfold), and StVK forces there reach
+thousands of times a vertex's weight. A few Jacobi sweeps of edge projection bring every edge
+back under ``max_stretch`` times its rest length, moving both ends of an edge equally along it
+and averaging the corrections per vertex; edges within the bound are untouched, so the rest of
+the drape keeps its skinned shape. Batched over leading dimensions, differentiable (plain torch ops).
 
 With a body, each sweep also pushes vertices closer than ``margin`` back out to it along the
 body normal (the closest-point planes are re-queried every few sweeps), so a tight bound can pull
 a garment onto a larger body without pulling it into it: a garment skinned onto a taller or wider
-body than it was made for is stretched by the body's own growth (median principal stretch
-1.11-1.20 on the test bodies), which a static drape does not need where the garment can ride up.
+body than it was made for is stretched by the body's own growth, which a static drape does not
+need where the garment can ride up.
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def limit_edge_stretch(
     if not 0.0 <= momentum < 1.0:
         raise ValueError(f"momentum must be in [0, 1), got {momentum}")
     # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies: a
-    # 2-D index_add is ~10x faster on CPU than one along dim -2 of a 3-D tensor.
+    # 2-D index_add is much faster on CPU than one along dim -2 of a 3-D tensor.
     shape, num_verts = x.shape, x.shape[-2]
     flat = x.reshape(-1, 3)
     copies = flat.shape[0] // num_verts
