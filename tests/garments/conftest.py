@@ -9,7 +9,7 @@ MAKEHUMAN_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "makeh
 
 @pytest.fixture(scope="session")
 def body():
-    from physdrape.garments.generator import canonical_body
+    from physdrape.garments.canonical import canonical_body
 
     return canonical_body()
 

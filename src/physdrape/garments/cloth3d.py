@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from physdrape.garments.generator import GarmentTemplate
+from physdrape.garments.remesh import remesh
 from physdrape.geometry.mesh import MeshError, read_mesh
 
 __all__ = ["read_cloth3d_info", "list_cloth3d_garments", "load_cloth3d_garment", "UPPER_BODY_GARMENTS"]
@@ -107,7 +108,5 @@ def load_cloth3d_garment(
     )
     g = GarmentTemplate(verts=verts, faces=faces, name=f"{sample_dir.name}_{garment}", meta=meta)
     if target_edge is not None:
-        from physdrape.garments.remesh import remesh
-
         g.verts, g.faces = remesh(verts, faces, target_edge=target_edge)
     return g

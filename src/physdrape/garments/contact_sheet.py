@@ -10,6 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from physdrape.garments.canonical import canonical_body
+from physdrape.garments.split import load_split
+
 __all__ = ["render_contact_sheet"]
 
 
@@ -82,8 +85,6 @@ def render_contact_sheet(
     import matplotlib.pyplot as plt
 
     if body is None:
-        from physdrape.garments.generator import canonical_body
-
         b = canonical_body()
         body = (b.verts, b.faces)
     bv, bf = body
@@ -108,8 +109,6 @@ def render_contact_sheet(
 
 
 def main(argv=None) -> None:
-    from physdrape.garments.split import load_split
-
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--split", required=True, help="directory written by physdrape.garments.split")
     ap.add_argument("--out", default=None, help="PNG path (default: SPLIT/test_contact_sheet.png)")

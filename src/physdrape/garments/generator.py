@@ -26,15 +26,16 @@ Positions y-up, metres, body facing +z.
 from __future__ import annotations
 
 import enum
-import functools
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces
 from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
 from physdrape.garments.remesh import remesh
+from physdrape.garments.validate import GarmentError, validate_garment
 from physdrape.geometry.mesh import face_areas
 from physdrape.geometry.topology import (
     boundary_edges,
@@ -54,8 +55,6 @@ __all__ = [
     "generate_batch",
     "generate_valid_garment",
     "COLLISION_MARGIN",
-    "CanonicalBody",
-    "canonical_body",
 ]
 
 #: Minimum clearance between a generated garment and the canonical body [m] (DESIGN: ε = 2 mm).
@@ -184,47 +183,6 @@ def sample_params(category: GarmentCategory | str, seed: int, *, attempt: int = 
         neck_depth=neck_depth, looseness=looseness, sleeve_looseness=sleeve_looseness,
         flare=flare, width=width, armhole_depth=armhole_depth, seed=int(seed),
     )
-
-
-# ----------------------------------------------------------------------------- the body
-@dataclass(frozen=True)
-class CanonicalBody:
-    """What the generator needs of the canonical body, as numpy (y-up metres, facing +z).
-
-    Attributes:
-        verts: vertex positions [m], shape (Vb, 3) float64.
-        faces: triangles, shape (Fb, 3) int64.
-        joints: joint (bone head) positions [m] by bone name, each shape (3,).
-        vertex_bone: dominant bone per vertex, shape (Vb,) int64 into bone_labels.
-        bone_labels: bone names of the rig.
-    """
-
-    verts: np.ndarray
-    faces: np.ndarray
-    joints: dict
-    vertex_bone: np.ndarray
-    bone_labels: tuple
-
-
-@functools.lru_cache(maxsize=1)
-def canonical_body() -> CanonicalBody:
-    """The canonical body, `physdrape.body.anny_body.get_anny_body()` with all phenotypes 0.5 in
-    its rest pose (built once per process)."""
-    import torch
-
-    from physdrape.body.anny_body import get_anny_body
-
-    anny = get_anny_body()
-    with torch.no_grad():
-        shape = anny.default_shape(1, dtype=torch.float64)
-        joints = anny.rest_joints(shape)[0].numpy()
-        return CanonicalBody(
-            verts=anny.canonical_verts(dtype=torch.float64).numpy(),
-            faces=anny.faces.numpy().astype(np.int64),
-            joints={name: joints[i] for i, name in enumerate(anny.joint_names)},
-            vertex_bone=anny.vertex_part().numpy().astype(np.int64),
-            bone_labels=tuple(anny.joint_names),
-        )
 
 
 # ----------------------------------------------------------------------------- body fields
@@ -588,8 +546,6 @@ def generate_valid_garment(
     Returns:
         (garment, attempt). Raises `GarmentError` after `max_attempts` failures.
     """
-    from physdrape.garments.validate import GarmentError, validate_garment
-
     body = canonical_body() if body is None else body
     report = None
     for attempt in range(max_attempts):

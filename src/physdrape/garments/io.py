@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from physdrape.garments.generator import GarmentTemplate
+from physdrape.garments.validate import validate_garment
 from physdrape.geometry.mesh import MeshError, read_mesh
 
 __all__ = ["load_template", "write_ply", "read_ply", "sha256_file", "default_garment"]
@@ -34,8 +35,6 @@ def load_template(path: str | os.PathLike, *, validate: bool = True, body=None) 
     verts, faces = read_mesh(path)
     g = GarmentTemplate(verts=verts, faces=faces, name=path.stem)
     if validate:
-        from physdrape.garments.validate import validate_garment
-
         report = validate_garment(verts, faces, name=path.name, body=body,
                                   require_clearance=False, max_inside_area_fraction=0.05)
         report.raise_if_failed()

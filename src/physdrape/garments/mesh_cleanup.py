@@ -20,7 +20,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from physdrape.geometry.topology import boundary_edges, drop_unused_vertices, undirected_edges
+from physdrape.geometry.topology import (
+    boundary_edges,
+    boundary_loops,
+    drop_unused_vertices,
+    interior_hinges,
+    undirected_edges,
+)
 
 __all__ = ["collapse_short_edges", "flip_to_delaunay", "remove_flat_ears"]
 
@@ -117,8 +123,6 @@ def remove_flat_ears(verts: np.ndarray, faces: np.ndarray, *, max_angle_deg: flo
     f = np.asarray(faces, np.int64)
     degree = np.bincount(f.ravel(), minlength=len(v))
     loops_len = {}
-    from physdrape.geometry.topology import boundary_loops
-
     for loop in boundary_loops(f):
         for x in loop.tolist():
             loops_len[x] = len(loop)
@@ -152,8 +156,6 @@ def flip_to_delaunay(verts: np.ndarray, faces: np.ndarray, *, max_dihedral_deg: 
     Returns:
         faces with the same vertices, winding kept.
     """
-    from physdrape.geometry.topology import interior_hinges
-
     v = np.asarray(verts, np.float64)
     f = np.asarray(faces, np.int64).copy()
     cos_limit = np.cos(np.radians(max_dihedral_deg))

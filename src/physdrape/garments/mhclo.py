@@ -19,9 +19,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
+from physdrape.body.anny_body import get_anny_body
 from physdrape.garments.generator import GarmentTemplate
+from physdrape.garments.numpy_geometry import BodyDistance
+from physdrape.garments.remesh import remesh
 from physdrape.geometry.mesh import MeshError, read_obj
+from physdrape.geometry.topology import undirected_edges, vertex_adjacency
 
 __all__ = ["MhcloBinding", "read_mhclo", "fit_mhclo", "load_mhclo", "resolve_body_penetration"]
 
@@ -169,13 +174,9 @@ def load_mhclo(
     verts = fit_mhclo(b, hm08)
     g = GarmentTemplate(verts=verts, faces=faces, name=b.name, meta={"source": str(path)})
     if target_edge is not None:
-        from physdrape.garments.remesh import remesh
-
         g.verts, g.faces = remesh(verts, faces, target_edge=target_edge)
         g.meta["remeshed"] = target_edge
     if resolve_margin is not None:
-        from physdrape.body.anny_body import get_anny_body
-
         anny = get_anny_body()  # its closed skin is a subset of hm08's vertices
         body_verts = np.asarray(hm08, np.float64)[anny.hm08_ids.numpy()]
         g.verts, moved = resolve_body_penetration(
@@ -187,10 +188,6 @@ def load_mhclo(
 
 def _anny_hm08_verts(phenotype: dict) -> np.ndarray:
     """The Anny body of `phenotype` (names -> [0, 1], missing ones 0.5) on hm08 [m], (19158, 3)."""
-    import torch
-
-    from physdrape.body.anny_body import get_anny_body
-
     anny = get_anny_body()
     with torch.no_grad():
         shape = anny.shape_from_dict({k: float(v) for k, v in phenotype.items()}, dtype=torch.float64)
@@ -216,9 +213,6 @@ def resolve_body_penetration(
     Returns:
         (new positions [m] (V, 3), number of vertices that were moved).
     """
-    from physdrape.geometry.topology import undirected_edges, vertex_adjacency
-    from physdrape.garments.numpy_geometry import BodyDistance
-
     q = BodyDistance(body_verts, body_faces)
     x = np.array(verts, np.float64)
     adj = vertex_adjacency(len(x), undirected_edges(np.asarray(faces, np.int64)))

@@ -21,6 +21,7 @@ import numpy as np
 #: Bumped whenever the generator's output changes; a split of another format is refused.
 SPLIT_FORMAT = "physdrape-garment-split/2"  # 2: remeshing cleans short edges and slivers
 
+from physdrape.garments.canonical import canonical_body
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
     GarmentTemplate,
@@ -95,8 +96,6 @@ def make_split(
     jobs = [(e, str(out_dir), target_edge) for e in entries]
     if workers > 1:
         import multiprocessing as mp
-
-        from physdrape.garments.generator import canonical_body
 
         canonical_body()  # load the body once before forking
         with mp.get_context("fork").Pool(workers) as pool:

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from physdrape.garments.intersections import self_intersecting_pairs
+from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
+from physdrape.geometry.topology import undirected_edges, vertex_adjacency
 
 __all__ = ["UntangleInfo", "untangle_garment"]
 
@@ -43,8 +45,6 @@ class UntangleInfo:
 
 
 def _adjacency(num_verts: int, faces: np.ndarray):
-    from physdrape.geometry.topology import undirected_edges, vertex_adjacency
-
     adj = vertex_adjacency(num_verts, undirected_edges(np.asarray(faces, np.int64)))
     deg = np.maximum(np.asarray(adj.sum(1)).ravel(), 1)
     return adj, deg
@@ -84,8 +84,6 @@ def untangle_garment(
         `margin` are first put at margin + 0.5 mm (so are those that end a round there); the
         others move only near crossings.
     """
-    from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
-
     faces = np.asarray(faces, np.int64)
     x = np.array(verts, np.float64)
     q = BodyDistance(np.asarray(body_verts, np.float64), np.asarray(body_faces, np.int64))

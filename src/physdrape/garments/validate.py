@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from physdrape.garments.canonical import canonical_body
 from physdrape.garments.intersections import self_intersecting_faces
 from physdrape.garments.numpy_geometry import BodyDistance
 from physdrape.geometry.mesh import MAX_GARMENT_EXTENT_M, MeshError, face_areas
@@ -262,8 +263,6 @@ def validate_garment(
             r.errors.append(f"self-intersecting faces {_show(r.self_intersecting_faces)}")
     if body is not False and r.extent <= MAX_GARMENT_EXTENT_M:
         if body is None:
-            from physdrape.garments.generator import canonical_body
-
             cb = canonical_body()
             body = (cb.verts, cb.faces)
         d, frac = body_penetration(verts, faces, *body)
