@@ -1,0 +1,143 @@
+"""Body contact: the penalty E_c = k_c Σ_s ReLU(ε − d_s)³ on the garment's contact samples.
+
+The samples are the garment's vertices, then its face centroids: S = V + F points, packed in that
+order. With vertices alone a face lying on a convex part of the body (a shoulder, an arm) dips
+its middle inside while its corners sit in the margin, and B2G counts faces by their centroids.
+A centroid moves with its face's corners (c = (x_a + x_b + x_c) / 3), so its force is shared
+equally by them.
+
+d_s is the signed distance of sample s to the body surface along the outward normal n_s [m]:
+either from a body query, or from a closest-point plane held fixed (d = (s − p)·n). In both cases
+∇_s d = n, so the gradient onto the vertices is exact, and with the plane held fixed the
+Gauss–Newton blocks 6 k_c ReLU(ε − d) n nᵀ are the exact Hessian.
+
+Every user (the training loss, the stretching solver, the physics oracle, the evaluation's
+total energy) calls these functions with its own stiffness k_c [J/m³] and margin ε [m].
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+if TYPE_CHECKING:
+    from physdrape.geometry.proximity import BodySurface, SurfaceQuery
+    from physdrape.physics.cloth import Cloth
+
+#: Collision margin ε [m]; also the collision handler's margin (DESIGN.md Sec. 2).
+DEFAULT_MARGIN = 2e-3
+#: Penalty stiffness k_c [J/m³] (DESIGN.md Sec. 2).
+DEFAULT_STIFFNESS = 2.5e3
+
+
+def contact_samples(x: Tensor, faces: Tensor) -> Tensor:
+    """The contact samples of positions x (V, 3) [m]: the vertices, then the face centroids, (V + F, 3)."""
+    return torch.cat([x, x[faces].mean(dim=1)])
+
+
+def sample_index(per_vertex: Tensor, faces: Tensor) -> Tensor:
+    """A per-vertex label (V,) (garment, body) extended to the samples (V + F,): a centroid takes
+    its face's first corner's."""
+    return torch.cat([per_vertex, per_vertex[faces[:, 0]]])
+
+
+def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None) -> SurfaceQuery:
+    """Body query of the samples of x (V, 3) [m], each against its vertex's body vert_body (V,)
+    (None: the surface holds one body).
+
+    The samples are formed in the body's dtype; the query's fields have leading shape (V + F,).
+    """
+    samples = contact_samples(x.to(bodies.verts.dtype), faces)
+    return bodies.query(samples, body_index=None if vert_body is None else sample_index(vert_body, faces))
+
+
+def contact_depth(distance: Tensor, *, margin: float) -> Tensor:
+    """ReLU(ε − d) [m] per sample, distance d (S,) [m] → (S,)."""
+    return (margin - distance).clamp_min(0.0)
+
+
+def contact_energy(distance: Tensor, *, stiffness: float, margin: float) -> Tensor:
+    """Penalty k_c ReLU(ε − d)³ [J] per sample, distance d (S,) [m] → (S,)."""
+    return stiffness * contact_depth(distance, margin=margin) ** 3
+
+
+def garment_energy(per_sample: Tensor, cloth: Cloth) -> Tensor:
+    """Per-sample values (V + F,) summed per garment (G,): vertices by `vert_garment`, centroids by
+    `face_garment`."""
+    num_verts = cloth.num_verts
+    return (cloth.sum_per_garment(per_sample[:num_verts], cloth.vert_garment)
+            + cloth.sum_per_garment(per_sample[num_verts:], cloth.face_garment))
+
+
+def to_vertices(per_sample: Tensor, faces: Tensor) -> Tensor:
+    """Sum per-sample values (V + F, ...) onto the vertices (V, ...), a centroid's 1/3 to each corner."""
+    num_verts = per_sample.shape[0] - faces.shape[0]
+    corner = (per_sample[num_verts:] / 3.0).repeat_interleave(3, dim=0)
+    return per_sample[:num_verts].index_add(0, faces.reshape(-1), corner)
+
+
+def contact_gradient(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float, margin: float) -> Tensor:
+    """∇_x E_c onto the vertices [N], (V, 3): −3 k_c ReLU(ε − d)² n per vertex sample, and a
+    centroid's −3 k_c ReLU(ε − d)² n shared equally by its corners.
+
+    distance: d of every sample (V + F,) [m]; normal: unit outward body normal n at each sample's
+    closest point (V + F, 3); faces: (F, 3). Differentiable in distance (and normal).
+    """
+    num_verts = distance.shape[0] - faces.shape[0]
+    depth = contact_depth(distance, margin=margin)
+    dv, dc = depth[:num_verts], depth[num_verts:]
+    grad = -(3.0 * stiffness * dv**2)[:, None] * normal[:num_verts]
+    corner = -(stiffness * dc**2)[:, None] * normal[num_verts:]  # 3 k d² n / 3 per corner
+    return grad.index_add(0, faces.reshape(-1), corner.repeat_interleave(3, dim=0))
+
+
+def contact_forces(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float, margin: float) -> Tensor:
+    """f = −∇_x E_c onto the vertices [N], (V, 3); arguments as `contact_gradient`."""
+    return -contact_gradient(distance, normal, faces, stiffness=stiffness, margin=margin)
+
+
+def contact_hessian_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float,
+                           margin: float) -> tuple[Tensor, Tensor]:
+    """Gauss–Newton blocks of E_c (closest points held fixed): per vertex (V, 3, 3)
+    6 k_c ReLU(ε − d) n nᵀ from its own sample, and per face (F, 9, 9) the centroid's
+    6 k_c ReLU(ε − d) n nᵀ / 9 in each of its 3 × 3 corner pairs. Their assembled sum is the
+    Hessian in x of E_c on fixed planes. Arguments as `contact_gradient`.
+    """
+    num_verts = distance.shape[0] - faces.shape[0]
+    depth = contact_depth(distance, margin=margin)
+    nv, nc = normal[:num_verts], normal[num_verts:]
+    vertex = (6.0 * stiffness * depth[:num_verts])[:, None, None] * nv[:, :, None] * nv[:, None, :]
+    centroid = (6.0 * stiffness * depth[num_verts:] / 9.0)[:, None, None] * nc[:, :, None] * nc[:, None, :]
+    face = centroid[:, None, :, None, :].expand(-1, 3, -1, 3, -1).reshape(-1, 9, 9)
+    return vertex, face
+
+
+def contact_vertex_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float,
+                          margin: float) -> Tensor:
+    """The 3 × 3 diagonal blocks (V, 3, 3) of E_c's Gauss–Newton Hessian: a vertex's own
+    6 k_c ReLU(ε − d) n nᵀ plus 1/9 of each of its faces' centroid blocks. Arguments as
+    `contact_gradient`."""
+    num_verts = distance.shape[0] - faces.shape[0]
+    depth = contact_depth(distance, margin=margin)
+    blocks = (6.0 * stiffness * depth)[:, None, None] * normal[:, :, None] * normal[:, None, :]
+    return to_vertices(torch.cat([blocks[:num_verts], blocks[num_verts:] / 3.0]), faces)
+
+
+def contact_vertices(distance: Tensor, faces: Tensor, *, margin: float) -> Tensor:
+    """Vertices the contact acts on (V,) bool: within the margin themselves, or a corner of a face
+    whose centroid is. distance: d of every sample (V + F,) [m]."""
+    num_verts = distance.shape[0] - faces.shape[0]
+    depth = contact_depth(distance, margin=margin)
+    contact = depth[:num_verts] > 0
+    contact[faces[depth[num_verts:] > 0].reshape(-1)] = True
+    return contact
+
+
+def penalty_contact_energy(x: Tensor, cloth: Cloth, bodies: BodySurface, vert_body: Tensor, *,
+                           stiffness: float = DEFAULT_STIFFNESS, margin: float = DEFAULT_MARGIN) -> Tensor:
+    """E_c per garment [J] (G,) at positions x (ΣV, 3) [m], from a body query of the vertices and
+    face centroids; vert_body: body of each vertex (ΣV,). Differentiable in x."""
+    distance = query_samples(x, cloth.faces, bodies, vert_body).signed_distance.to(x.dtype)
+    return garment_energy(contact_energy(distance, stiffness=stiffness, margin=margin), cloth)

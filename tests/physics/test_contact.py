@@ -1,0 +1,161 @@
+"""The body-contact penalty (`physics.contact`), float64: forces are −∇ of the energy (autograd and
+central differences, on held planes and through the live body query), Gauss–Newton blocks are the
+Hessian on held planes, and the per-garment sums."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.primitives import open_cylinder
+from physdrape.geometry.proximity import BodySurface
+from physdrape.physics import Cloth
+from physdrape.physics.contact import (
+    contact_energy,
+    contact_forces,
+    contact_gradient,
+    contact_hessian_blocks,
+    contact_samples,
+    contact_vertex_blocks,
+    contact_vertices,
+    garment_energy,
+    penalty_contact_energy,
+    query_samples,
+    sample_index,
+    to_vertices,
+)
+
+K_C, EPS = 2.5e3, 2e-3
+
+
+@pytest.fixture(scope="module")
+def body() -> BodySurface:
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
+    return BodySurface(torch.tensor(np.asarray(sphere.vertices)), torch.tensor(np.asarray(sphere.faces)))
+
+
+def _band(radius=0.152, seed=0, rings=3, segments=20) -> tuple[Garment, torch.Tensor]:
+    """A short tube around the sphere's equator, its samples scattered about the margin, float64."""
+    verts, faces = open_cylinder(rings, segments, radius=radius, length=0.04)
+    verts[:, 1] -= 0.02
+    garment = Garment.from_mesh(verts, faces)
+    gen = torch.Generator().manual_seed(seed)
+    return garment, garment.rest + 1e-3 * torch.randn(garment.rest.shape, generator=gen, dtype=torch.float64)
+
+
+def _planes(body, x, faces):
+    q = query_samples(x, faces, body, None)
+    return q.closest, q.normal, q.signed_distance
+
+
+def _plane_energy(x, faces, closest, normal):
+    distance = ((contact_samples(x, faces) - closest) * normal).sum(-1)
+    return contact_energy(distance, stiffness=K_C, margin=EPS).sum()
+
+
+def test_the_case_has_vertices_and_centroids_in_and_out_of_contact(body):
+    garment, x = _band()
+    _, _, distance = _planes(body, x, garment.faces)
+    dv, dc = distance[:garment.num_verts], distance[garment.num_verts:]
+    for d in (dv, dc):
+        assert (d < EPS).sum() > 5 and (d > EPS).sum() > 5
+
+
+def test_force_is_negative_autograd_gradient_on_held_planes(body):
+    garment, x = _band()
+    closest, normal, distance = _planes(body, x, garment.faces)
+    xg = x.clone().requires_grad_()
+    (grad,) = torch.autograd.grad(_plane_energy(xg, garment.faces, closest, normal), xg)
+    assert grad.abs().max() > 1e-6, "test point is stationary: the comparison would prove nothing"
+    f = contact_forces(distance, normal, garment.faces, stiffness=K_C, margin=EPS)
+    torch.testing.assert_close(f, -grad, rtol=1e-10, atol=1e-14)
+    torch.testing.assert_close(contact_gradient(distance, normal, garment.faces, stiffness=K_C, margin=EPS), -f)
+
+
+def test_force_matches_central_differences_of_the_queried_energy(body):
+    """Through the live body query (closest point re-found at every trial state)."""
+    garment, x = _band(seed=1)
+    cloth = Cloth.build(garment)
+    vert_body = torch.zeros(garment.num_verts, dtype=torch.int64)
+    q = query_samples(x, garment.faces, body, vert_body)
+    f = contact_forces(q.signed_distance, q.normal, garment.faces, stiffness=K_C, margin=EPS)
+
+    def energy(xt):
+        return float(penalty_contact_energy(xt, cloth, body, vert_body, stiffness=K_C, margin=EPS).sum())
+
+    gen = torch.Generator().manual_seed(3)
+    h = 1e-7
+    for _ in range(5):
+        direction = torch.randn(x.shape, generator=gen, dtype=x.dtype)
+        direction /= direction.norm()
+        fd = (energy(x + h * direction) - energy(x - h * direction)) / (2 * h)
+        analytic = -float((f * direction).sum())
+        assert abs(fd) > 1e-6, "finite-difference signal is zero: not a meaningful test point"
+        assert analytic == pytest.approx(fd, rel=1e-5)
+
+
+def test_gauss_newton_blocks_are_the_hessian_on_held_planes(body):
+    garment, x = _band(seed=3)
+    faces, num_verts = garment.faces, garment.num_verts
+    closest, normal, distance = _planes(body, x, faces)
+    vertex, face = contact_hessian_blocks(distance, normal, faces, stiffness=K_C, margin=EPS)
+    assert vertex.shape == (num_verts, 3, 3) and face.shape == (faces.shape[0], 9, 9)
+    assembled = torch.zeros(num_verts, 3, num_verts, 3, dtype=x.dtype)
+    idx = torch.arange(num_verts)
+    assembled[idx, :, idx, :] += vertex
+    for f, corners in enumerate(faces.tolist()):
+        for a, i in enumerate(corners):
+            for b, j in enumerate(corners):
+                assembled[i, :, j, :] += face[f, 3 * a:3 * a + 3, 3 * b:3 * b + 3]
+    assembled = assembled.reshape(3 * num_verts, 3 * num_verts)
+    exact = torch.autograd.functional.hessian(lambda xt: _plane_energy(xt, faces, closest, normal), x)
+    exact = exact.reshape(3 * num_verts, 3 * num_verts)
+    assert exact.abs().max() > 1e-3
+    torch.testing.assert_close(assembled, exact, rtol=1e-10, atol=1e-10 * float(exact.abs().max()))
+    # the per-vertex blocks are the diagonal blocks of that Hessian
+    diagonal = exact.reshape(num_verts, 3, num_verts, 3)[idx, :, idx, :]
+    torch.testing.assert_close(contact_vertex_blocks(distance, normal, faces, stiffness=K_C, margin=EPS), diagonal,
+                               rtol=1e-10, atol=1e-10 * float(exact.abs().max()))
+
+
+def test_second_derivative_along_the_normal_matches_finite_differences(body):
+    """One vertex moved along its own plane's normal: d²E/dh² = 6 k_c ReLU(ε − d) (plus its faces'
+    centroid shares), by central differences of the energy on held planes."""
+    garment, x = _band(seed=4)
+    faces = garment.faces
+    closest, normal, distance = _planes(body, x, faces)
+    vertex, face = contact_hessian_blocks(distance, normal, faces, stiffness=K_C, margin=EPS)
+    depth = (EPS - distance[:garment.num_verts]).clamp_min(0)
+    i = int(torch.argmax(depth))
+    assert depth[i] > 1e-4
+    n = torch.zeros_like(x)
+    n[i] = normal[i]
+    h = 1e-6
+
+    def e(t):
+        return float(_plane_energy(x + t * n, faces, closest, normal))
+
+    fd = (e(h) - 2 * e(0.0) + e(-h)) / h**2
+    block = contact_vertex_blocks(distance, normal, faces, stiffness=K_C, margin=EPS)[i]
+    assert float(normal[i] @ block @ normal[i]) == pytest.approx(fd, rel=1e-4)
+    own = float(normal[i] @ vertex[i] @ normal[i])
+    assert own == pytest.approx(6 * K_C * float(depth[i]), rel=1e-12)
+
+
+def test_energy_per_garment_and_the_centroid_share():
+    garment, x = _band()
+    batch = GarmentBatch.pack([garment, _band(radius=0.16)[0]])
+    cloth = Cloth.build(batch)
+    gen = torch.Generator().manual_seed(5)
+    per_sample = torch.rand(cloth.num_verts + cloth.faces.shape[0], generator=gen, dtype=torch.float64)
+    owner = sample_index(cloth.vert_garment, cloth.faces)
+    expected = torch.zeros(2, dtype=torch.float64).index_add_(0, owner, per_sample)
+    torch.testing.assert_close(garment_energy(per_sample, cloth), expected)
+    # to_vertices keeps the total, each centroid split 1/3 per corner
+    torch.testing.assert_close(to_vertices(per_sample, cloth.faces).sum(), per_sample.sum())
+    distance = torch.full_like(per_sample, 1.0)
+    distance[cloth.num_verts] = 0.0  # the first face's centroid only
+    flags = contact_vertices(distance, cloth.faces, margin=EPS)
+    assert flags.nonzero().flatten().tolist() == sorted(cloth.faces[0].tolist())
+    assert (contact_energy(torch.tensor([EPS, 1.0]), stiffness=K_C, margin=EPS) == 0).all()
