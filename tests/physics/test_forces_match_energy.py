@@ -1,4 +1,5 @@
-"""Every analytic force is −∇ of its energy: autograd and central finite differences, float64."""
+"""Every analytic force is −∇ of its energy: autograd and central finite differences, float64
+(the body contact's: tests/physics/test_contact.py)."""
 
 import pytest
 import torch
@@ -9,8 +10,6 @@ from physdrape.physics import (
     Material,
     bend_energy,
     bend_forces,
-    collision_energy,
-    collision_forces,
     gravity_energy,
     gravity_forces,
     internal_energy,
@@ -63,22 +62,6 @@ def test_force_matches_central_finite_differences(term, mesh, request):
         analytic = -(f * direction).sum()
         assert abs(float(fd)) > 1e-7, "finite-difference signal is zero: not a meaningful test point"
         assert float(analytic) == pytest.approx(float(fd), rel=1e-6, abs=1e-10)
-
-
-def test_collision_force_matches_energy_against_a_plane():
-    # Body = the half-space y < 0: signed distance d = y, outward normal +y.
-    torch.manual_seed(0)
-    x = torch.rand(200, 3, dtype=torch.float64) * 0.01 - 0.004  # y in [-4, 6] mm around the margin
-    x.requires_grad_()
-    d = x[:, 1]
-    energy = collision_energy(d, stiffness=2.5e3, margin=2e-3).sum()
-    (grad,) = torch.autograd.grad(energy, x)
-    normal = torch.zeros_like(x)
-    normal[:, 1] = 1.0
-    f = collision_forces(d.detach(), normal, stiffness=2.5e3, margin=2e-3)
-    assert grad.abs().max() > 1e-6
-    torch.testing.assert_close(f, -grad, rtol=1e-10, atol=0.0)
-    assert torch.all(f[x[:, 1].detach() >= 2e-3] == 0), "no force beyond the margin"
 
 
 def test_forces_follow_the_input_dtype(sheet):

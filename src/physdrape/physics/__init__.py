@@ -2,7 +2,7 @@
 
 from physdrape.physics.bending import bend_energy, bend_forces, dihedral_angle
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.collision import collision_energy, collision_forces
+from physdrape.physics.contact import contact_energy, contact_forces, penalty_contact_energy
 from physdrape.physics.forces import energy_terms, internal_energy, internal_forces
 from physdrape.physics.gravity import gravity_energy, gravity_forces
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
@@ -16,14 +16,15 @@ __all__ = [
     "OracleResult",
     "bend_energy",
     "bend_forces",
-    "collision_energy",
-    "collision_forces",
+    "contact_energy",
+    "contact_forces",
     "dihedral_angle",
     "energy_terms",
     "gravity_energy",
     "gravity_forces",
     "internal_energy",
     "internal_forces",
+    "penalty_contact_energy",
     "relax",
     "strain_energy",
     "strain_forces",
