@@ -6,12 +6,13 @@ import pytest
 import torch
 
 from physdrape.model import ModelConfig
-from physdrape.train import checkpoint as ckpt
+from physdrape import checkpoint as ckpt
 from physdrape.train.synthetic import SyntheticSource
 from physdrape.train.trainer import OptimConfig, TrainConfig, Trainer
 
 TINY = TrainConfig(
-    model=ModelConfig(latent=16, blocks=2, normalizer_accumulations=3),
+    model=ModelConfig(latent=16, blocks=2, normalizer_accumulations=3, solver="explicit", eta=1e-3, gamma=0.9,
+                      max_step=5e-3),
     optim=OptimConfig(steps=8, batch_size=2, lr=3e-3, checkpoint_every=4, log_every=1, seed=3),
 )
 
@@ -20,12 +21,12 @@ def trainer(run_dir, config=TINY):
     return Trainer(config, SyntheticSource(), run_dir, progress=False, tensorboard=False)
 
 
-@pytest.mark.parametrize("solver", ["explicit", "jacobi"])
+@pytest.mark.parametrize("solver", ["explicit", "two_level"])
 def test_short_training_run_lowers_the_loss(tmp_path, solver):
     # Same two tiny problems every step: the loss on them must fall.
     from dataclasses import replace
 
-    model = replace(TINY.model, solver=solver, eta=1.0 if solver == "jacobi" else TINY.model.eta)
+    model = TINY.model if solver == "explicit" else ModelConfig(latent=16, blocks=2, normalizer_accumulations=3)
     config = TrainConfig(model=model, optim=OptimConfig(steps=40, batch_size=2, lr=3e-3, checkpoint_every=40, log_every=5))
     t = trainer(tmp_path, config)
     fixed = t.source.make_batch([11, 12])
@@ -99,15 +100,15 @@ def test_init_from_starts_a_fresh_run_from_another_checkpoint(tmp_path):
 
 
 def test_init_from_another_solver_kind_keeps_this_runs_eta_and_gamma(tmp_path):
-    """An explicit solver's η is a compliance in m/N, a Jacobi solver's a fraction of a step:
+    """An explicit solver's η is a compliance in m/N, a two-level solver's a fraction of a step:
     fine-tuning across kinds takes every weight but those two."""
     from dataclasses import replace
 
     trainer(tmp_path / "base").run()
     base, _ = ckpt.read_checkpoint(tmp_path / "base")
-    jacobi = replace(TINY, model=replace(TINY.model, solver="jacobi", eta=1.0, gamma=0.98),
-                     optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
-    tuned = trainer(tmp_path / "tuned", jacobi)
+    two_level = replace(TINY, model=replace(TINY.model, solver="two_level", eta=1.0, gamma=0.98),
+                        optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
+    tuned = trainer(tmp_path / "tuned", two_level)
     fresh = {k: v.clone() for k, v in tuned.model.state_dict().items()}
     tuned.init_weights(tmp_path / "base")
     for name, value in tuned.model.state_dict().items():

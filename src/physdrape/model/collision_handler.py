@@ -10,7 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from physdrape.geometry.proximity import BodySurface
-from physdrape.physics.collision import DEFAULT_MARGIN
+from physdrape.physics.contact import DEFAULT_MARGIN
 
 
 class CollisionHandler(nn.Module):

@@ -6,6 +6,7 @@ import enum
 from dataclasses import dataclass
 
 from physdrape.model.stretching_solver import SolverKind
+from physdrape.physics.contact import DEFAULT_MARGIN, DEFAULT_STIFFNESS
 
 
 class Variant(str, enum.Enum):
@@ -28,7 +29,7 @@ class Variant(str, enum.Enum):
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Architecture and module settings of `PhysDrape`.
+    """Architecture and module settings of `PhysDrape`; the defaults are the shipped model's.
 
     latent / blocks / mlp_layers: GNN width D, depth L and Linear layers per MLP (paper: 128, 16, 2).
     levels: coarse graph levels added to the mesh edges for message passing (0: the paper's mesh
@@ -36,16 +37,16 @@ class ModelConfig:
     picked in vertex order, so a model with levels is not exactly equivariant to relabelling).
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
-    solver: "explicit" (the paper's Eq. 10, a scalar compliance), "jacobi" (block-Jacobi
-    preconditioned, with body contact and a descent safeguard) or "two_level" (conjugate
-    directions, block Jacobi plus a coarse correction on smooth patches, a line search; see
-    `StretchingSolver`). requery_every: solver steps between body queries (jacobi, two_level).
-    coarse_levels / coarse_smoothing: the two_level solver's patches (`CoarseSpace`).
-    eta / gamma: initial solver compliance (explicit: [m/N]; jacobi: dimensionless, 1 = a full
-    block-Jacobi step) and decay; max_step: the solver's per-vertex step clip [m] (stability
-    guard, see `StretchingSolver`); momentum: heavy-ball momentum of the jacobi solver's steps
-    (0 = none). delta: initial handler push factor.
-    margin: collision margin ε [m]. centroid_margin: ε_c [m] of the handler's centroid pass (faces
+    solver: "two_level" (conjugate directions, block Jacobi plus a coarse correction on smooth
+    patches, body contact, a line search) or "explicit" (the paper's Eq. 10, a scalar
+    compliance); see `StretchingSolver`. requery_every: two-level steps between body queries.
+    coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
+    eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
+    step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
+    (stability guard, see `StretchingSolver`). delta: initial handler push factor.
+    margin: contact margin ε [m] of the handler, the solver's contact term and the training loss.
+    contact_stiffness: penalty stiffness k_c [J/m³] of the solver's contact term and the training
+    loss (`physics.contact`). centroid_margin: ε_c [m] of the handler's centroid pass (faces
     whose centroid is closer to the body are pushed out; 0 = the paper's vertex-only handler; see
     `CollisionHandler`). displacement_scale: metres per unit of the decoder's Δx.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
@@ -59,16 +60,16 @@ class ModelConfig:
     zero_init_output: bool = False
     train_steps: int = 3
     eval_steps: int = 15
-    solver: SolverKind = SolverKind.EXPLICIT
-    eta: float = 1e-3
-    gamma: float = 0.9
-    max_step: float = 5e-3
-    momentum: float = 0.0
-    requery_every: int = 5
+    solver: SolverKind = SolverKind.TWO_LEVEL
+    eta: float = 1.0
+    gamma: float = 0.98
+    max_step: float = 1e-2
+    requery_every: int = 3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05
-    margin: float = 2e-3
+    margin: float = DEFAULT_MARGIN
+    contact_stiffness: float = DEFAULT_STIFFNESS
     centroid_margin: float = 5e-4
     displacement_scale: float = 0.01
     normalizer_accumulations: int = 100

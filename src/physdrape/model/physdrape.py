@@ -58,8 +58,8 @@ class PhysDrape(nn.Module):
             NODE_FEATURES, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
             zero_init_output=config.zero_init_output,
         )
-        self.solver = StretchingSolver(eta=config.eta, gamma=config.gamma, max_step=config.max_step, kind=config.solver,
-                                       margin=config.margin, momentum=config.momentum,
+        self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
+                                       margin=config.margin, contact_stiffness=config.contact_stiffness,
                                        requery_every=config.requery_every, coarse_levels=config.coarse_levels,
                                        coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)

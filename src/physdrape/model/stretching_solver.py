@@ -11,7 +11,14 @@ from torch import Tensor, nn
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
-from physdrape.physics.collision import DEFAULT_MARGIN, DEFAULT_STIFFNESS
+from physdrape.physics.contact import (
+    contact_energy,
+    contact_forces,
+    contact_samples,
+    contact_vertex_blocks,
+    garment_energy,
+    query_samples,
+)
 from physdrape.physics.forces import internal_energy, internal_forces
 from physdrape.physics.hessians import vertex_blocks
 
@@ -20,8 +27,7 @@ class SolverKind(str, enum.Enum):
     """How the solver turns forces into steps (see `StretchingSolver`)."""
 
     EXPLICIT = "explicit"  # the paper's Eq. 10 as written: a scalar compliance η [m/N]
-    JACOBI = "jacobi"  # block-Jacobi preconditioned: a per-vertex compliance η·K_i⁻¹, with contact
-    TWO_LEVEL = "two_level"  # + a coarse correction of smooth patches, conjugate directions, line search
+    TWO_LEVEL = "two_level"  # preconditioned conjugate directions with body contact and a line search
 
 
 class StretchingSolver(nn.Module):
@@ -31,62 +37,47 @@ class StretchingSolver(nn.Module):
     unresolved stress; DESIGN.md Sec. 3.5), held fixed over the T steps, so the solver relaxes
     toward F = −f̂. η > 0 is exp-parametrised, γ ∈ (0, 1) sigmoid-parametrised.
 
-    - ``kind="explicit"`` (the paper's Eq. 10): C = I, F = F_int, η a compliance in m/N.
-    - ``kind="jacobi"``: η is dimensionless and C_t = K(X^t)⁻¹ per vertex, K_i the 3×3 diagonal
-      block of a PSD majorant of the Hessian of E_strain + E_bend + E_coll
-      (`physics.hessians.vertex_blocks`): each vertex gets the compliance of its own stiffness,
-      so one η suits a 3 mm sliver and a 2 cm face, silk and leather alike, where a scalar η
-      must be set for the stiffest element and then barely moves the rest. F = F_int + F_coll:
-      the DESIGN.md E_coll penalty (the training loss's) on closest-point planes of the body,
-      queried every `requery_every` steps, so gravity cannot pull the garment through the body
-      mid-solve. Each step is a descent step on each garment's
-      Φ = E_strain + E_bend + E_grav + E_coll − f̂·x: where Φ would rise, the garment's step is
-      halved (up to `max_halvings` times, else skipped), so no step raises the energy it
-      relaxes (on the body planes held at that step). K (a preconditioner) is not
-      differentiated; the step is, through F, f̂, η and γ.
-      Optional heavy-ball momentum (`momentum`) with restarts, under the same safeguard.
-    - ``kind="two_level"``: the jacobi solver's Φ, with the contact penalty at the face centroids
-      too, minimised by preconditioned nonlinear conjugate gradients (Polak-Ribière+, restarted
-      where the direction does not descend). The preconditioner is two-level:
-      C = K⁻¹ (block Jacobi) + P (Pᵀ K P)⁻¹ Pᵀ, the second term the Galerkin correction on a
-      garment's smooth patches (`physics.coarse_space.CoarseSpace`), which moves what block
-      Jacobi cannot: the garment sliding, riding up or stretching as a whole. Coarse factor and
-      body planes are refreshed every `requery_every` steps. Each step's length is the minimum of
-      a parabola through Φ along the clipped move η γ^t C F (then halved while Φ does not drop),
-      so no step raises a garment's Φ. Measured on the 8 evaluation instances, no network: T = 15
-      reaches E_strain 0.015 J where jacobi reaches 0.064 J (results/README.md). C, the
+    - ``kind="explicit"`` (the paper's Eq. 10, the baseline): C = I, F = F_int, η a compliance
+      in m/N.
+    - ``kind="two_level"``: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x, with E_c
+      the body-contact penalty of `physics.contact` (the training loss's and the oracle's term:
+      vertices and face centroids) on closest-point planes of the body, queried every
+      `requery_every` steps so that gravity cannot pull the garment through the body mid-solve,
+      minimised by preconditioned nonlinear conjugate gradients (Polak-Ribière+, restarted where
+      the direction does not descend). η is dimensionless (1 = a full preconditioned step). The
+      preconditioner is two-level: C = K⁻¹ + P (Pᵀ K P)⁻¹ Pᵀ, K⁻¹ block Jacobi (K_i the 3×3
+      diagonal block of a PSD majorant of the Hessian of E_strain + E_bend + E_c,
+      `physics.hessians.vertex_blocks`: each vertex gets the compliance of its own stiffness, so
+      one η suits small and large faces, soft and stiff fabrics), the second term the Galerkin
+      correction on a garment's smooth patches (`physics.coarse_space.CoarseSpace`), which moves
+      what block Jacobi cannot: the garment sliding, riding up or stretching as a whole. Coarse
+      factor and body planes are refreshed every `requery_every` steps. Each step's length is
+      the minimum of a parabola through Φ along the clipped move η γ^t C F (then halved while Φ
+      does not drop), so no step raises a garment's Φ (on the planes held at that step). C, the
       conjugation and the step length are not differentiated; the step is, through F, f̂, η, γ.
 
-    Stability guard (all kinds): each vertex's step is clipped to `max_step` [m] in length,
+    Stability guard (both kinds): each vertex's step is clipped to `max_step` [m] in length,
     keeping its direction. Kinematic initialisations can stretch edges where the pose pulls the
-    skin (armpits, shoulders); StVK forces there reach tens of newtons — thousands of times a
-    vertex's weight — and an unclipped explicit step would diverge.
+    skin (armpits, shoulders); StVK forces there reach thousands of times a vertex's weight, and
+    an unclipped explicit step would diverge.
 
     Args:
-        eta: initial η ([m/N] explicit; dimensionless jacobi, 1 = a full block-Jacobi step).
+        kind: `SolverKind`.
+        eta: initial η ([m/N] explicit; dimensionless two_level, 1 = a full preconditioned step).
         gamma: initial decay γ.
         max_step: longest move of one vertex in one step [m] (0 disables the guard).
-        kind: `SolverKind`.
-        margin, contact_stiffness: ε [m] and k_c [J/m³] of the jacobi solver's contact term.
-        requery_every: jacobi / two-level steps between body queries (the planes, and the
-            coarse factor, are held in between).
+        margin, contact_stiffness: ε [m] and k_c [J/m³] of the two-level solver's contact term.
+        requery_every: two-level steps between body queries (the planes, and the coarse factor,
+            are held in between).
         max_halvings: step halvings before a step that does not lower Φ is skipped.
-        momentum: heavy-ball momentum β of the jacobi steps, in [0, 1): each step first tries
-            clip(η γ^t K⁻¹F + β·(last accepted move)) and falls back to the plain step (a restart)
-            where that does not lower Φ. Jacobi steps relax a garment's short wavelengths at once
-            and its long ones (the garment riding up or sliding down as a whole) slowly; momentum
-            carries those along (the 8 evaluation instances, no network, T = 15, with the fifth
-            session's S⁺ blocks: E_strain 0.079 J at β = 0, 0.064 J at β = 0.8).
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
             their body plane than this get the penalty's stiffness at depth ε (`_Relaxation`).
     """
 
-    def __init__(self, *, eta: float = 1e-3, gamma: float = 0.9, max_step: float = 5e-3,
-                 kind: SolverKind | str = SolverKind.EXPLICIT, margin: float = DEFAULT_MARGIN,
-                 contact_stiffness: float = DEFAULT_STIFFNESS, requery_every: int = 5, max_halvings: int = 6,
-                 momentum: float = 0.0, coarse_levels: int = 2, coarse_smoothing: int = 2,
-                 contact_band: float = 0.01) -> None:
+    def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
+                 gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, max_halvings: int = 6,
+                 coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -94,8 +85,6 @@ class StretchingSolver(nn.Module):
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
         if requery_every < 1 or max_halvings < 0:
             raise ValueError(f"need requery_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, {max_halvings}")
-        if not 0.0 <= momentum < 1.0:
-            raise ValueError(f"momentum must be in [0, 1), got {momentum}")
         if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0:
             raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0 and contact_band ≥ 0 [m], got "
                              f"{coarse_levels}, {coarse_smoothing}, {contact_band}")
@@ -103,7 +92,6 @@ class StretchingSolver(nn.Module):
         self.max_step = max_step
         self.margin, self.contact_stiffness = margin, contact_stiffness
         self.requery_every, self.max_halvings = requery_every, max_halvings
-        self.momentum = momentum
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
@@ -121,12 +109,10 @@ class StretchingSolver(nn.Module):
                 bodies: BodySurface | None = None, body_index: Tensor | None = None) -> Tensor:
         """Run `steps` solver steps from x (ΣV, 3) [m]; f̂ (ΣV, 3) [N] or None (pure relaxation).
 
-        bodies / body_index (ΣV,): the posed bodies and each vertex's body, for the jacobi
+        bodies / body_index (ΣV,): the posed bodies and each vertex's body, for the two-level
         solver's contact term (ignored by the explicit one; None = no contact). If `trace` is a
         list, the state after each step is appended to it.
         """
-        if self.kind is SolverKind.JACOBI:
-            return self._jacobi(x, cloth, f_hat, steps, trace, bodies, body_index)
         if self.kind is SolverKind.TWO_LEVEL:
             return self._two_level(x, cloth, f_hat, steps, trace, bodies, body_index)
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
@@ -147,39 +133,11 @@ class StretchingSolver(nn.Module):
         length = move.norm(dim=-1, keepdim=True)
         return move * (self.max_step / length.clamp_min(self.max_step))
 
-    def _jacobi(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
-                bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
-        eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
-        problem = _Relaxation(cloth, f_hat, self.margin, self.contact_stiffness)
-        owner = cloth.vert_garment
-        step = eta
-        phi = None  # Φ at x, carried from the accepted trial while the planes are held
-        velocity = None  # the last accepted move (heavy-ball momentum; None when momentum is 0)
-        for t in range(steps):
-            if bodies is not None and t % self.requery_every == 0:
-                problem.requery(x, bodies, body_index)
-                phi = None
-            force, distance = problem.force(x)
-            chol = self._stiffness_factor(x.detach(), cloth, problem.contact_blocks(distance))
-            plain = step * torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1)
-            # the heavy-ball candidate first (if any), then the plain step (a restart of the momentum)
-            candidates = [self._clip(plain + self.momentum * velocity)] if velocity is not None else []
-            candidates.append(self._clip(plain))
-            x0 = x.detach()
-            factors, phi = self._descent_factors(problem.potential, x0, problem.potential(x0) if phi is None else phi,
-                                                 candidates, owner)
-            accepted = sum(move * factor[owner, None] for move, factor in zip(candidates, factors))
-            x = x + accepted
-            velocity = accepted if self.momentum else None
-            step = step * gamma
-            if trace is not None:
-                trace.append(x)
-        return x
-
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
                    bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
-        problem = _Relaxation(cloth, f_hat, self.margin, self.contact_stiffness, centroids=True, band=self.contact_band)
+        problem = _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness,
+                              band=self.contact_band)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         owner = cloth.vert_garment
 
@@ -234,28 +192,6 @@ class StretchingSolver(nn.Module):
         return torch.linalg.cholesky(blocks + floor[:, None, None] * torch.eye(3, dtype=x.dtype, device=x.device))
 
     @torch.no_grad()
-    def _descent_factors(self, potential, x0: Tensor, phi0: Tensor, candidates: list[Tensor],
-                         owner: Tensor) -> tuple[list[Tensor], Tensor]:
-        """The safeguard: per garment, the first candidate move (in order) that lowers Φ within
-        `max_halvings` halvings. Returns each candidate's per-garment factor (G,) (0 where not
-        taken; all 0 for a garment whose Φ no candidate lowers) and Φ after the step (G,)."""
-        phi = phi0.clone()
-        done = torch.zeros_like(phi0, dtype=torch.bool)
-        factors = []
-        for move in candidates:
-            trial, factor = move.detach(), torch.ones_like(phi0)
-            taken = torch.zeros_like(done)
-            for _ in range(self.max_halvings + 1):
-                phi_trial = potential(x0 + trial * factor[owner, None])
-                lower = ~done & (phi_trial < phi0)
-                phi, done, taken = torch.where(lower, phi_trial, phi), done | lower, taken | lower
-                if bool(done.all()):
-                    break
-                factor = torch.where(done, factor, 0.5 * factor)
-            factors.append(torch.where(taken, factor, torch.zeros_like(factor)))
-        return factors, phi
-
-    @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,
                      owner: Tensor) -> tuple[Tensor, Tensor]:
         """Step length α per garment along `move` (gain = F·move = −dΦ/dα at 0, (G,)): the minimum
@@ -282,91 +218,60 @@ class StretchingSolver(nn.Module):
 
 
 class _Relaxation:
-    """What the jacobi and two-level solvers relax: each garment's
-    Φ = E_strain + E_bend + E_grav + E_coll − f̂·x, with E_coll the DESIGN.md penalty
-    k_c ReLU(ε − d)³ on closest-point planes of the body, held between `requery` calls, at the
-    vertices and (``centroids``) at the face centroids too, as the oracle has it: with vertices
-    alone a face on a convex part of the body dips its middle inside while its corners sit in the
-    margin, and B2G counts faces.
+    """What the two-level solver relaxes: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x,
+    with E_c the contact penalty of `physics.contact` at the vertices and face centroids on
+    closest-point planes of the body, held between `requery` calls.
 
-    The contact's Gauss-Newton blocks 6 k_c d n nᵀ vanish at d = 0, so a quadratic model of Φ
-    does not see the body until the garment is in it; samples closer to their plane than `band`
-    [m] get the blocks of depth ε instead (a preconditioner: the line search still descends Φ).
+    The contact's Gauss-Newton blocks 6 k_c ReLU(ε − d) n nᵀ vanish at d ≥ ε, so a quadratic
+    model of Φ does not see the body until the garment is in its margin; samples closer to their
+    plane than `band` [m] get the blocks of depth ε instead (a preconditioner only: the line
+    search still descends Φ).
     """
 
-    def __init__(self, cloth: Cloth, f_hat: Tensor | None, margin: float, stiffness: float, *,
-                 centroids: bool = False, band: float = 0.0) -> None:
-        self.cloth, self.f_hat, self.margin, self.stiffness = cloth, f_hat, margin, stiffness
-        self.centroids, self.band = centroids, band
-        self.owner = torch.cat([cloth.vert_garment, cloth.face_garment]) if centroids else cloth.vert_garment
+    def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float) -> None:
+        self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
 
-    def _samples(self, x: Tensor) -> Tensor:
-        if not self.centroids:
-            return x
-        f = self.cloth.faces
-        return torch.cat([x, (x[f[:, 0]] + x[f[:, 1]] + x[f[:, 2]]) / 3.0])
-
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None) -> None:
-        if body_index is not None and self.centroids:
-            body_index = torch.cat([body_index, body_index[self.cloth.faces[:, 0]]])
         with torch.no_grad():
-            q = bodies.query(self._samples(x.detach()), body_index=body_index)
+            q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
         self.planes = (q.closest.to(x.dtype), q.normal.to(x.dtype))
 
     def distance(self, x: Tensor) -> Tensor | None:
         """d per sample (vertices, then centroids) above its held plane [m], or None without planes."""
         if self.planes is None:
             return None
-        return ((self._samples(x) - self.planes[0]) * self.planes[1]).sum(-1)
-
-    def depth(self, x: Tensor) -> Tensor | None:
-        """ReLU(ε − d) per sample, or None without planes."""
-        distance = self.distance(x)
-        return None if distance is None else (self.margin - distance).clamp_min(0.0)
+        return ((contact_samples(x, self.cloth.faces) - self.planes[0]) * self.planes[1]).sum(-1)
 
     def potential(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J]."""
         phi = internal_energy(x, self.cloth)
-        depth = self.depth(x)
-        if depth is not None:
-            phi = phi + self.cloth.sum_per_garment(self.stiffness * depth ** 3, self.owner)
+        distance = self.distance(x)
+        if distance is not None:
+            phi = phi + garment_energy(contact_energy(distance, stiffness=self.stiffness, margin=self.margin),
+                                       self.cloth)
         if self.f_hat is not None:
             phi = phi - self.cloth.sum_per_garment((self.f_hat * x).sum(-1), self.cloth.vert_garment)
         return phi
-
-    def _to_vertices(self, per_sample: Tensor) -> Tensor:
-        """Sum per-sample values (S, ...) onto the vertices, a centroid's value 1/3 to each corner."""
-        num_verts = self.cloth.num_verts
-        if not self.centroids:
-            return per_sample
-        faces = self.cloth.faces
-        corner = (per_sample[num_verts:] / 3.0).repeat_interleave(3, dim=0)
-        return per_sample[:num_verts].index_add(0, faces.reshape(-1), corner)
 
     def force(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """(−∇Φ (V, 3) [N], each sample's distance d to its plane or None)."""
         force = internal_forces(x, self.cloth)
         distance = self.distance(x)
         if distance is not None:
-            depth = (self.margin - distance).clamp_min(0.0)
-            force = force + self._to_vertices((3.0 * self.stiffness * depth * depth)[:, None] * self.planes[1])
+            force = force + contact_forces(distance, self.planes[1], self.cloth.faces, stiffness=self.stiffness,
+                                           margin=self.margin)
         if self.f_hat is not None:
             force = force + self.f_hat
         return force, distance
 
     def contact_blocks(self, distance: Tensor | None) -> Tensor | None:
-        """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) (a centroid's 1/9 on each
-        corner's diagonal) from the samples' distances d, samples within `band` of their plane at
-        depth ≥ ε; or None."""
+        """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) from the samples'
+        distances d, samples within `band` of their plane taken at depth ≥ ε; or None."""
         if distance is None:
             return None
         distance = distance.detach()
-        depth = (self.margin - distance).clamp_min(0.0)
-        if self.band > 0:
-            depth = torch.where(distance < self.band, depth.clamp_min(self.margin), depth)
-        normal = self.planes[1]
-        blocks = (6.0 * self.stiffness * depth)[:, None, None] * normal[:, :, None] * normal[:, None, :]
-        if self.centroids:
-            blocks = torch.cat([blocks[:self.cloth.num_verts], blocks[self.cloth.num_verts:] / 3.0])
-        return self._to_vertices(blocks)
+        if self.band > 0:  # depth ReLU(ε − min(d, 0)) = max(ReLU(ε − d), ε) within the band
+            distance = torch.where(distance < self.band, distance.clamp_max(0.0), distance)
+        return contact_vertex_blocks(distance, self.planes[1], self.cloth.faces, stiffness=self.stiffness,
+                                     margin=self.margin)

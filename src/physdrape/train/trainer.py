@@ -22,7 +22,7 @@ from physdrape.config_io import to_mapping
 from physdrape.physics.metrics import b2g_percent
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape
 from physdrape.model.stretching_solver import SolverKind
-from physdrape.train import checkpoint as ckpt
+from physdrape import checkpoint as ckpt
 from physdrape.train.data import DataConfig
 from physdrape.train.loss import LossConfig, drape_loss
 
@@ -142,14 +142,14 @@ class Trainer:
     def init_weights(self, checkpoint: str | os.PathLike) -> None:
         """Start from another checkpoint's model weights (input statistics included). Kept at this
         run's initial values instead: the solver's η and γ when the checkpoint's solver is of
-        another kind (their meaning differs: a compliance in m/N vs a fraction of a Jacobi step),
+        another kind (their meaning differs: a compliance in m/N vs a fraction of a preconditioned step),
         and the decoder's last layer when `model.zero_init_output` is set (the fine-tune then
         starts from the drape without the network and takes the checkpoint's features)."""
         weights, config = ckpt.read_checkpoint(checkpoint)
         own = self.model.state_dict()
         keep = []
         theirs = config.get("train", {}).get("model", {}).get("solver", SolverKind.EXPLICIT.value)
-        if SolverKind(theirs) is not self.model.config.solver:
+        if theirs != self.model.config.solver.value:
             keep += [k for k in own if k.startswith("solver.")]
         if self.model.config.zero_init_output:
             last = f"gnn.decoder.{len(self.model.gnn.decoder) - 1}."
@@ -190,7 +190,8 @@ class Trainer:
         model.train()
         batch = self._local_batch()
         out = model(batch)
-        loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init)
+        loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init,
+                                 contact_stiffness=self.config.model.contact_stiffness, margin=self.config.model.margin)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)

@@ -1,0 +1,26 @@
+"""ModelConfig: the defaults are the shipped model's physics settings, and its config loads strictly."""
+
+import json
+from importlib import resources
+
+from physdrape.config_io import from_mapping
+from physdrape.model import ModelConfig
+from physdrape.model.stretching_solver import SolverKind
+
+PHYSICS = ("solver", "eta", "gamma", "max_step", "requery_every", "coarse_levels", "coarse_smoothing", "delta",
+           "margin", "contact_stiffness", "centroid_margin", "train_steps", "eval_steps", "displacement_scale")
+
+
+def _shipped() -> dict:
+    path = resources.files("physdrape") / "assets" / "models" / "cpu_default" / "config.json"
+    return json.loads(path.read_text())["train"]["model"]
+
+
+def test_the_shipped_models_config_loads_strictly():
+    config = from_mapping(ModelConfig, _shipped(), where="cpu_default/config.json:train.model")
+    assert config.solver is SolverKind.TWO_LEVEL
+
+
+def test_defaults_are_the_shipped_models_physics_settings():
+    shipped, default = from_mapping(ModelConfig, _shipped()), ModelConfig()
+    assert {name: getattr(default, name) for name in PHYSICS} == {name: getattr(shipped, name) for name in PHYSICS}
