@@ -20,9 +20,8 @@ class CollisionHandler(nn.Module):
     closest is not differentiated; x* is differentiable in x (and δ).
 
     The paper's handler moves vertices only. A large triangle over a convex part of the body can
-    have all three vertices ε outside and its interior inside: on two CC0 MakeHuman suits, 9 and
-    14 faces with edges up to 8 cm had centroids up to 1.2 mm deep while no vertex was inside. The
-    centroid pass (when `faces` are given and ε_c > 0) takes each face whose centroid c_f is
+    have all three vertices ε outside and its interior inside (coarse garments, with edges of
+    several centimetres, do). The centroid pass (when `faces` are given and ε_c > 0) takes each face whose centroid c_f is
     closer than ε_c to the body, with push p_f = ε_c − d(c_f) along the normal n_f there, and
     moves each of its vertices by max_f p_f along the p-weighted mean direction of its faces'
     n_f. One pass: a lone face's centroid ends at ε_c; where pushed faces share vertices and

@@ -4,21 +4,18 @@ Block Jacobi (`physics.hessians.vertex_blocks`) relaxes a garment's short wavele
 its long ones — the garment sliding down or riding up as a whole, a strap stretching along its
 length — over many steps: such a motion barely strains any face, but each vertex sees only its
 own stiffness, through which the weak force that drives the motion (gravity) moves it by a tiny
-step (measured: after 60 block-Jacobi steps a tank top on the evaluation's body 6 was still
-6.2 cm above where the oracle hangs it). The coarse level adds the motions of a few
-hundred smooth patches per garment, solved together:
+step, so a garment can stay centimetres above where it hangs at equilibrium. The coarse level
+adds the motions of a few hundred smooth patches per garment, solved together:
 
     z_c = P (Pᵀ K P)⁻¹ Pᵀ r,
 
 with K the PSD strain-Hessian majorant of every face (`physics.hessians.face_blocks`) plus the
 solver's contact blocks, and P a smoothed-aggregation prolongation (`topology.aggregates`,
 `topology.smoothed_prolongation`): patch indicators averaged over mesh neighbours, so a patch
-moves as a smooth bump and no kink is left at its border. Bending is left out of Pᵀ K P: smooth
-patches barely bend, and its hinge blocks (16 vertex pairs each) would more than double the
-gather. Measured with an early version
-of the two-level solver on the 8 evaluation instances, T = 15: E_bend 3.7 mJ with raw indicators
-against 2.5 mJ smoothed (coarse level refreshed every step); with the bending blocks E_strain
-0.027 J and E_bend 2.00 mJ, without them 0.029 J and 1.95 mJ (refreshed every 3 steps).
+moves as a smooth bump and no kink is left at its border (raw indicators leave kinks that the
+fine level then has to bend out). Bending is left out of Pᵀ K P: smooth patches barely bend,
+and its hinge blocks (16 vertex pairs each) would more than double the gather for little change
+in the correction.
 
 Numerics: patches and P depend on a garment's topology only and are cached. K (in the cloth's
 dtype) is gathered into 3×3 blocks of the vertex pairs that share a face; Pᵀ K P is formed in
@@ -46,9 +43,7 @@ __all__ = ["CoarseSpace"]
 REGULARIZATION = 1e-6
 
 #: Most patches of one garment: a larger garment gets more coarsening levels, so that its dense
-#: coarse factor stays small (600 patches: an 1,800 × 1,800 Cholesky per refresh). Every garment
-#: of the training and test splits (at most 270 patches at 2 levels) and four of the five CC0
-#: suits (328–516) are below it; the 9.7k-vertex male_casualsuit05 (651) gets a third level.
+#: coarse factor stays small (600 patches: an 1,800 × 1,800 Cholesky per refresh).
 MAX_PATCHES = 600
 
 _CACHE: dict[tuple, sp.csr_matrix] = {}
@@ -95,7 +90,7 @@ class CoarseSpace:
     Args:
         cloth: the batch (garments packed contiguously, as `GarmentBatch.pack` does).
         levels: patch seeds are the nodes of `topology.coarse_graphs` level `levels` (2: patches
-            of 6–15 vertices: 184 on a 33 × 33 grid, 216 on a 3k-vertex T-shirt).
+            of 6–15 vertices).
         smoothing: neighbour-averaging passes of the patch indicators.
     """
 
