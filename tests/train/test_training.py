@@ -24,8 +24,6 @@ def trainer(run_dir, config=TINY):
 @pytest.mark.parametrize("solver", ["explicit", "two_level"])
 def test_short_training_run_lowers_the_loss(tmp_path, solver):
     # Same two tiny problems every step: the loss on them must fall.
-    from dataclasses import replace
-
     model = TINY.model if solver == "explicit" else ModelConfig(latent=16, blocks=2, normalizer_accumulations=3)
     config = TrainConfig(model=model, optim=OptimConfig(steps=40, batch_size=2, lr=3e-3, checkpoint_every=40, log_every=5))
     t = trainer(tmp_path, config)

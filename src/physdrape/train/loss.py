@@ -56,7 +56,7 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
 
     Returns the scalar loss and the batch-mean of each term [J] (detached) for logging.
     """
-    contact = dict(contact_stiffness=contact_stiffness, margin=margin)
+    contact = {"contact_stiffness": contact_stiffness, "margin": margin}
     terms = drape_energies(x, cloth, bodies, body_index, **contact)
     total = sum(terms.values())
     if config.per_garment_scale == "initial":
