@@ -27,7 +27,8 @@ from timing import median_ms
 def median_ms_nowarm(fn, repeats):
     return median_ms(fn, repeats, warmup=0)
 
-from physdrape.geometry.proximity import BodySurface, SignMethod, closest_point_on_triangle
+from physdrape.geometry.closest_point import closest_point_on_triangle
+from physdrape.geometry.proximity import BodySurface, SignMethod
 
 
 def load_body(kind: str) -> tuple[torch.Tensor, torch.Tensor, str]:

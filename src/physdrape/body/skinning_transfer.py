@@ -37,7 +37,8 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from physdrape.geometry.proximity import BodySurface, closest_point_on_triangle
+from physdrape.geometry.closest_point import closest_point_on_triangle
+from physdrape.geometry.proximity import BodySurface
 from physdrape.geometry.strain_limit import limit_edge_stretch
 from physdrape.geometry.topology import undirected_edges
 from physdrape.physics.collision import DEFAULT_MARGIN

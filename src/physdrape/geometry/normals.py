@@ -1,8 +1,10 @@
-"""Area-weighted vertex normals of triangle meshes (torch, batched, differentiable).
+"""Normals of triangle meshes (torch, batched, differentiable): face normals, area-weighted
+vertex normals and angle-weighted vertex pseudo-normals.
 
-The one implementation for garments (`geometry.garment`, the model's features) and bodies
-(`body.model`, Anny/SMPL states). Angle-weighted pseudo-normals for inside tests are a different
-quantity: `geometry.proximity.angle_weighted_vertex_normals`.
+Area-weighted vertex normals are the one implementation for garments (`geometry.garment`, the
+model's features) and bodies (`body.model`, Anny/SMPL states). Angle-weighted pseudo-normals
+(Baerentzen & Aanaes 2005) are a different quantity, used by the body-surface queries
+(`geometry.proximity`) for inside tests and for the direction of points on the surface.
 """
 
 from __future__ import annotations
@@ -10,7 +12,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["vertex_face_table", "vertex_normals"]
+__all__ = [
+    "vertex_face_table",
+    "vertex_normals",
+    "face_normals",
+    "triangle_normals",
+    "angle_weighted_vertex_normals",
+]
 
 
 def vertex_face_table(faces: Tensor, num_verts: int) -> Tensor:
@@ -52,3 +60,40 @@ def vertex_normals(x: Tensor, faces: Tensor, *, table: Tensor | None = None) -> 
         padded = torch.cat([face_n, face_n.new_zeros(face_n.shape[:-2] + (1, 3))], dim=-2)
         normals = padded[..., table, :].sum(-2)
     return normals / normals.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+
+
+def face_normals(verts: Tensor, faces: Tensor) -> Tensor:
+    """Unit face normals (right-handed winding), shape (..., F, 3); zero for degenerate faces.
+
+    Args:
+        verts: vertex positions [m], shape (..., Vb, 3).
+        faces: triangles, shape (F, 3) int64.
+    """
+    return triangle_normals(verts[..., faces, :])
+
+
+def triangle_normals(corners: Tensor) -> Tensor:
+    """Unit normals of triangles given as corners, shape (..., 3, 3) -> (..., 3); zero if degenerate."""
+    n = torch.cross(corners[..., 1, :] - corners[..., 0, :], corners[..., 2, :] - corners[..., 0, :], dim=-1)
+    length = n.norm(dim=-1, keepdim=True)
+    return n / torch.where(length > 0, length, torch.ones_like(length))
+
+
+def angle_weighted_vertex_normals(verts: Tensor, faces: Tensor) -> Tensor:
+    """Angle-weighted unit vertex normals (the vertex pseudo-normal), shape (..., Vb, 3).
+
+    Args:
+        verts: vertex positions [m], shape (..., Vb, 3).
+        faces: triangles, shape (F, 3) int64.
+    """
+    tri = verts[..., faces, :]  # (..., F, 3, 3)
+    fn = face_normals(verts, faces)
+    out = torch.zeros_like(verts)
+    for k in range(3):
+        e1 = tri[..., (k + 1) % 3, :] - tri[..., k, :]
+        e2 = tri[..., (k + 2) % 3, :] - tri[..., k, :]
+        cos = (e1 * e2).sum(-1) / (e1.norm(dim=-1) * e2.norm(dim=-1)).clamp_min(torch.finfo(verts.dtype).tiny)
+        angle = torch.acos(cos.clamp(-1.0, 1.0))
+        out = out.index_add(-2, faces[:, k], fn * angle[..., None])
+    length = out.norm(dim=-1, keepdim=True)
+    return out / torch.where(length > 0, length, torch.ones_like(length))

@@ -7,13 +7,14 @@ body *triangles* (exact point-triangle, not nearest vertex), which way is out th
 
 Split of the work:
 
-1. **Search (not differentiated)**: NVIDIA Warp's triangle-mesh BVH (``wp.Mesh``, built once per
-   body, ``refit()`` when only the vertex positions change) finds the closest triangle of every
-   point in float32 and, if asked, the generalized winding number (Warp's fast winding number,
-   Barill et al. 2018) for the inside test.
-2. **Geometry (differentiable, input dtype)**: the closest point on the found triangle is
-   recomputed in torch (Ericson's region test) in the dtype of the input, so ``closest``,
-   ``signed_distance`` and ``normal`` are differentiable w.r.t. the points and the body vertices.
+1. **Search (not differentiated, `geometry.body_bvh`)**: NVIDIA Warp's triangle-mesh BVH
+   (``wp.Mesh``, built once per body, ``refit()`` when only the vertex positions change) finds the
+   closest triangle of every point in float32 and, if asked, the generalized winding number
+   (Warp's fast winding number, Barill et al. 2018) for the inside test.
+2. **Geometry (differentiable, input dtype, `geometry.closest_point`)**: the closest point on the
+   found triangle is recomputed in torch (Ericson's region test) in the dtype of the input, so
+   ``closest``, ``signed_distance`` and ``normal`` are differentiable w.r.t. the points and the
+   body vertices.
 
 Normal and sign (chosen so that the handler ``x* = x + delta * relu(eps - d) * n`` with
 ``delta >= 1`` puts every point at ``d >= eps`` wherever the body's local feature size exceeds
@@ -24,8 +25,9 @@ eps):
   valid whether the closest feature is a face, an edge or a vertex (a face normal would give a
   wrong distance and sometimes a wrong sign off edges and vertices).
 - ``n =`` the angle-weighted pseudo-normal of the closest feature (face normal in a face, the mean
-  of the two face normals on an edge, the angle-weighted vertex normal at a vertex) when the point
-  is within ``near_tol`` of the surface, where ``x - p`` carries no direction.
+  of the two face normals on an edge, the angle-weighted vertex normal at a vertex, see
+  `geometry.normals`) when the point is within ``near_tol`` of the surface, where ``x - p``
+  carries no direction.
 - ``d = (x - p) . n``, i.e. ``s * |x - p|`` away from the surface (exactly the signed distance) and
   ``|d| <= near_tol`` on it. Then ``p + eps * n`` is the handler's target for every point. Its
   distance to the body is exactly eps on convex parts; at a concave crease of angle theta between
@@ -40,21 +42,22 @@ World frame and units follow DESIGN Sec. 1 (metres); no dtype is hard-coded.
 from __future__ import annotations
 
 import enum
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from physdrape.geometry.body_bvh import BodyBVH
+from physdrape.geometry.closest_point import closest_point_on_triangle
+from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
+from physdrape.geometry.topology import edge_neighbour_faces
+
 __all__ = [
     "SignMethod",
     "SurfaceQuery",
     "BodySurface",
     "query_body_surface",
-    "closest_point_on_triangle",
-    "face_normals",
-    "angle_weighted_vertex_normals",
 ]
 
 
@@ -95,191 +98,6 @@ class SurfaceQuery:
     face: Tensor
     bary: Tensor
     inside: Tensor
-
-
-# --------------------------------------------------------------------------------------------
-# Pure torch geometry (differentiable, any dtype)
-# --------------------------------------------------------------------------------------------
-
-
-def _safe_div(num: Tensor, den: Tensor) -> Tensor:
-    """num / den where den != 0, else 0 (keeps NaNs out of the unselected torch.where branches)."""
-    ok = den != 0
-    return torch.where(ok, num / torch.where(ok, den, torch.ones_like(den)), torch.zeros_like(num))
-
-
-def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
-    """Exact closest point on triangles (Ericson, Real-Time Collision Detection, Sec. 5.1.5).
-
-    Args:
-        x: query points [m], shape (..., 3).
-        a, b, c: triangle corners [m], shape (..., 3) (broadcast against x).
-
-    Returns:
-        p: closest points [m], shape (..., 3), differentiable w.r.t. x, a, b, c.
-        bary: barycentric coordinates (wa, wb, wc) of p, shape (..., 3); a coordinate is exactly
-            zero when p lies on the opposite edge (two are zero at a vertex).
-    """
-    ab, ac, ap = b - a, c - a, x - a
-    d1 = (ab * ap).sum(-1)
-    d2 = (ac * ap).sum(-1)
-    bp = x - b
-    d3 = (ab * bp).sum(-1)
-    d4 = (ac * bp).sum(-1)
-    cp = x - c
-    d5 = (ab * cp).sum(-1)
-    d6 = (ac * cp).sum(-1)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-
-    one = torch.ones_like(d1)
-    zero = torch.zeros_like(d1)
-    # Interior.
-    den = va + vb + vc
-    v_in = _safe_div(vb, den)
-    w_in = _safe_div(vc, den)
-    bary = torch.stack([one - v_in - w_in, v_in, w_in], -1)
-
-    def pick(mask: Tensor, new: Tensor, cur: Tensor) -> Tensor:
-        return torch.where(mask[..., None], new, cur)
-
-    # Regions in reverse priority order, so the first test in Ericson's order wins.
-    w_bc = _safe_div(d4 - d3, (d4 - d3) + (d5 - d6))
-    bary = pick((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), torch.stack([zero, one - w_bc, w_bc], -1), bary)
-    w_ac = _safe_div(d2, d2 - d6)
-    bary = pick((vb <= 0) & (d2 >= 0) & (d6 <= 0), torch.stack([one - w_ac, zero, w_ac], -1), bary)
-    bary = pick((d6 >= 0) & (d5 <= d6), torch.stack([zero, zero, one], -1), bary)
-    v_ab = _safe_div(d1, d1 - d3)
-    bary = pick((vc <= 0) & (d1 >= 0) & (d3 <= 0), torch.stack([one - v_ab, v_ab, zero], -1), bary)
-    bary = pick((d3 >= 0) & (d4 <= d3), torch.stack([zero, one, zero], -1), bary)
-    bary = pick((d1 <= 0) & (d2 <= 0), torch.stack([one, zero, zero], -1), bary)
-
-    p = bary[..., 0:1] * a + bary[..., 1:2] * b + bary[..., 2:3] * c
-    return p, bary
-
-
-def face_normals(verts: Tensor, faces: Tensor) -> Tensor:
-    """Unit face normals (right-handed winding), shape (..., F, 3); zero for degenerate faces.
-
-    Args:
-        verts: vertex positions [m], shape (..., Vb, 3).
-        faces: triangles, shape (F, 3) int64.
-    """
-    return _unit_triangle_normal(verts[..., faces, :])
-
-
-def _unit_triangle_normal(corners: Tensor) -> Tensor:
-    """Unit normals of triangles given as corners, shape (..., 3, 3) -> (..., 3); zero if degenerate."""
-    n = torch.cross(corners[..., 1, :] - corners[..., 0, :], corners[..., 2, :] - corners[..., 0, :], dim=-1)
-    length = n.norm(dim=-1, keepdim=True)
-    return n / torch.where(length > 0, length, torch.ones_like(length))
-
-
-def angle_weighted_vertex_normals(verts: Tensor, faces: Tensor) -> Tensor:
-    """Angle-weighted unit vertex normals (the vertex pseudo-normal), shape (..., Vb, 3).
-
-    Args:
-        verts: vertex positions [m], shape (..., Vb, 3).
-        faces: triangles, shape (F, 3) int64.
-    """
-    tri = verts[..., faces, :]  # (..., F, 3, 3)
-    fn = face_normals(verts, faces)
-    out = torch.zeros_like(verts)
-    for k in range(3):
-        e1 = tri[..., (k + 1) % 3, :] - tri[..., k, :]
-        e2 = tri[..., (k + 2) % 3, :] - tri[..., k, :]
-        cos = (e1 * e2).sum(-1) / (e1.norm(dim=-1) * e2.norm(dim=-1)).clamp_min(torch.finfo(verts.dtype).tiny)
-        angle = torch.acos(cos.clamp(-1.0, 1.0))
-        out = out.index_add(-2, faces[:, k], fn * angle[..., None])
-    length = out.norm(dim=-1, keepdim=True)
-    return out / torch.where(length > 0, length, torch.ones_like(length))
-
-
-def _edge_neighbours(faces: np.ndarray) -> np.ndarray:
-    """For face f and local corner k, the other face across the edge opposite corner k (-1 if none).
-
-    Returns shape (F, 3) int64. On a non-manifold edge one of the other faces is taken.
-    """
-    num_faces = faces.shape[0]
-    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])  # edge opposite corner 0, 1, 2
-    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    half = np.arange(3 * num_faces)
-    order = np.lexsort((half, hi, lo))
-    key_lo, key_hi = lo[order], hi[order]
-    same_next = np.zeros(3 * num_faces, dtype=bool)
-    same_next[:-1] = (key_lo[1:] == key_lo[:-1]) & (key_hi[1:] == key_hi[:-1])
-    partner = np.full(3 * num_faces, -1, dtype=np.int64)
-    # Pair each half-edge with the next one of the same key, and the last of a run with the previous.
-    nxt = np.flatnonzero(same_next)
-    partner[order[nxt]] = order[nxt + 1]
-    prv = nxt + 1
-    unpaired = partner[order[prv]] < 0
-    partner[order[prv[unpaired]]] = order[prv[unpaired] - 1]
-    face_of = np.where(partner >= 0, partner % num_faces, -1)
-    return face_of.reshape(3, num_faces).T.copy()
-
-
-# --------------------------------------------------------------------------------------------
-# Warp kernels (imported and compiled lazily, once per process; Warp caches the binary on disk)
-# --------------------------------------------------------------------------------------------
-
-
-#: Below this many points per thread the search runs on one thread (launch overhead dominates).
-_MIN_POINTS_PER_THREAD = 1024
-
-
-@functools.cache
-def _search_pool(workers: int):
-    """A shared thread pool for chunked BVH searches (Warp releases the GIL inside a kernel)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="physdrape-bvh")
-
-
-@functools.cache
-def _warp():
-    """Import warp and define the query kernels (first call only)."""
-    from physdrape.warp_runtime import warp
-
-    wp = warp()
-
-    @wp.kernel(enable_backward=False)
-    def closest_kernel(
-        mesh_ids: wp.array(dtype=wp.uint64),
-        body: wp.array(dtype=wp.int32),
-        points: wp.array(dtype=wp.vec3),
-        max_dist: float,
-        face: wp.array(dtype=wp.int32),
-    ):
-        i = wp.tid()
-        q = wp.mesh_query_point_no_sign(mesh_ids[body[i]], points[i], max_dist)
-        if q.result:
-            face[i] = q.face
-        else:
-            face[i] = -1
-
-    @wp.kernel(enable_backward=False)
-    def closest_winding_kernel(
-        mesh_ids: wp.array(dtype=wp.uint64),
-        body: wp.array(dtype=wp.int32),
-        points: wp.array(dtype=wp.vec3),
-        max_dist: float,
-        accuracy: float,
-        face: wp.array(dtype=wp.int32),
-        inside: wp.array(dtype=wp.int32),
-    ):
-        i = wp.tid()
-        q = wp.mesh_query_point_sign_winding_number(mesh_ids[body[i]], points[i], max_dist, accuracy, 0.5)
-        if q.result:
-            face[i] = q.face
-            inside[i] = wp.where(q.sign < 0.0, 1, 0)
-        else:
-            face[i] = -1
-            inside[i] = 0
-
-    return wp, closest_kernel, closest_winding_kernel
 
 
 # --------------------------------------------------------------------------------------------
@@ -368,8 +186,7 @@ class BodySurface:
         self.winding_accuracy = float(winding_accuracy)
         verts = _check_verts(verts)
         self.faces = _check_faces(faces, verts.shape[1]).to(verts.device)
-        self._edge_nbr = torch.from_numpy(_edge_neighbours(self.faces.cpu().numpy())).to(verts.device)
-        self._meshes: list = []
+        self._edge_nbr = torch.from_numpy(edge_neighbour_faces(self.faces.cpu().numpy())).to(verts.device)
         self._build(verts)
 
     # -- structure ---------------------------------------------------------------------------
@@ -388,22 +205,9 @@ class BodySurface:
 
     def _build(self, verts: Tensor) -> None:
         """(Re)build one Warp BVH per body."""
-        wp, _, _ = _warp()
         self.verts = verts
         self._vertex_normals = None
-        self._wp_device = wp.device_from_torch(verts.device)
-        # float32 copies the BVHs point at (Warp meshes are float32); must outlive the meshes.
-        self._points32 = verts.detach().to(torch.float32).contiguous().clone()
-        self._indices32 = self.faces.to(torch.int32).reshape(-1).contiguous()
-        wp_indices = wp.from_torch(self._indices32, dtype=wp.int32)
-        with_wn = self.sign_method is SignMethod.WINDING_NUMBER
-        self._meshes = [
-            wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
-                    support_winding_number=with_wn)
-            for b in range(verts.shape[0])
-        ]
-        ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
-        self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
+        self._bvh = BodyBVH(verts, self.faces, with_winding_number=self.sign_method is SignMethod.WINDING_NUMBER)
 
     def update(self, verts: Tensor) -> None:
         """Move the bodies to new vertex positions (same topology): refit the BVHs.
@@ -420,9 +224,7 @@ class BodySurface:
             return
         self.verts = verts
         self._vertex_normals = None
-        self._points32.copy_(verts.detach())
-        for mesh in self._meshes:
-            mesh.refit()
+        self._bvh.refit(verts)
 
     @classmethod
     def from_body_state(cls, state, **kwargs) -> BodySurface:
@@ -433,38 +235,8 @@ class BodySurface:
 
     def _search(self, points32: Tensor, body: Tensor) -> tuple[Tensor, Tensor | None]:
         """Warp BVH search: closest face (and winding-number inside flag) per point."""
-        wp, closest_kernel, closest_winding_kernel = _warp()
-        n = points32.shape[0]
-        face = torch.empty(n, dtype=torch.int32, device=points32.device)
-        with_wn = self.sign_method is SignMethod.WINDING_NUMBER
-        inside = torch.empty(n, dtype=torch.int32, device=points32.device) if with_wn else None
-        max_dist = 1.0e30
-
-        def launch(lo: int, hi: int) -> None:
-            points = wp.from_torch(points32[lo:hi], dtype=wp.vec3)
-            owner = wp.from_torch(body[lo:hi], dtype=wp.int32)
-            out_face = wp.from_torch(face[lo:hi], dtype=wp.int32)
-            if with_wn:
-                wp.launch(closest_winding_kernel, dim=hi - lo, device=self._wp_device,
-                          inputs=[self._mesh_ids, owner, points, max_dist, self.winding_accuracy],
-                          outputs=[out_face, wp.from_torch(inside[lo:hi], dtype=wp.int32)])
-            else:
-                wp.launch(closest_kernel, dim=hi - lo, device=self._wp_device,
-                          inputs=[self._mesh_ids, owner, points, max_dist], outputs=[out_face])
-
-        threads = self.search_threads or torch.get_num_threads()
-        chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
-        if chunks > 1:
-            bounds = np.linspace(0, n, chunks + 1).astype(int)
-            pool = _search_pool(chunks)
-            for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
-                job.result()
-        elif n:
-            launch(0, n)
-        if n and int(face.min()) < 0:
-            raise RuntimeError("the body BVH found no triangle for some points: every face of the body is "
-                               "degenerate (zero area); check the body faces")
-        return face.to(torch.int64), (inside.bool() if inside is not None else None)
+        return self._bvh.closest_faces(points32, body, winding_accuracy=self.winding_accuracy,
+                                       threads=self.search_threads)
 
     def _vertex_pseudo_normals(self) -> Tensor:
         """Angle-weighted vertex normals of all bodies, shape (B, Vb, 3); cached until update()."""
@@ -483,14 +255,14 @@ class BodySurface:
         """
         verts = self.verts.detach()
         tri = self.faces[face]  # (M, 3)
-        out = _unit_triangle_normal(verts[body[:, None], tri])
+        out = triangle_normals(verts[body[:, None], tri])
         zero = bary == 0
         num_zero = zero.sum(-1)
         on_edge = num_zero == 1
         if on_edge.any():
             corner = torch.argmax(zero.to(torch.int8), dim=-1)
             nbr = self._edge_nbr[face, corner]
-            other = _unit_triangle_normal(verts[body[:, None], self.faces[nbr.clamp_min(0)]])
+            other = triangle_normals(verts[body[:, None], self.faces[nbr.clamp_min(0)]])
             edge_n = out + torch.where((nbr >= 0)[:, None], other, torch.zeros_like(other))
             edge_n = edge_n / edge_n.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(edge_n.dtype).tiny)
             out = torch.where(on_edge[:, None], edge_n, out)

@@ -65,6 +65,31 @@ def interior_hinges(faces: np.ndarray) -> np.ndarray:
     return np.stack([ab[first, 0], ab[first, 1], opposite[first], opposite[second]], axis=1)
 
 
+def edge_neighbour_faces(faces: np.ndarray) -> np.ndarray:
+    """For face f and local corner k, the other face across the edge opposite corner k (-1 if none).
+
+    Returns shape (F, 3) int64. On a non-manifold edge one of the other faces is taken.
+    """
+    num_faces = faces.shape[0]
+    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])  # edge opposite corner 0, 1, 2
+    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    half = np.arange(3 * num_faces)
+    order = np.lexsort((half, hi, lo))
+    key_lo, key_hi = lo[order], hi[order]
+    same_next = np.zeros(3 * num_faces, dtype=bool)
+    same_next[:-1] = (key_lo[1:] == key_lo[:-1]) & (key_hi[1:] == key_hi[:-1])
+    partner = np.full(3 * num_faces, -1, dtype=np.int64)
+    # Pair each half-edge with the next one of the same key, and the last of a run with the previous.
+    nxt = np.flatnonzero(same_next)
+    partner[order[nxt]] = order[nxt + 1]
+    prv = nxt + 1
+    unpaired = partner[order[prv]] < 0
+    partner[order[prv[unpaired]]] = order[prv[unpaired] - 1]
+    face_of = np.where(partner >= 0, partner % num_faces, -1)
+    return face_of.reshape(3, num_faces).T.copy()
+
+
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """Half-edges a→b that belong to one face only, in that face's winding, shape (K, 2) int64."""
     ab, _, _, _, start, count, _ = _edge_groups(faces)

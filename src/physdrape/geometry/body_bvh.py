@@ -1,0 +1,155 @@
+"""The search half of the body-surface queries: NVIDIA Warp triangle-mesh BVHs, one per body.
+
+`BodyBVH` holds one ``wp.Mesh`` per body of a batch sharing one topology (built once, ``refit()``
+when only the vertex positions change) and finds the closest triangle of every query point in
+float32 and, if asked, the generalized winding number (Warp's fast winding number, Barill et al.
+2018) for the inside test. Nothing here is differentiated: `geometry.proximity` recomputes the
+closest point on the found triangle in torch.
+
+The Warp kernels are defined lazily, once per process (Warp caches the compiled binary on disk).
+"""
+
+from __future__ import annotations
+
+import functools
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from physdrape.warp_runtime import warp
+
+__all__ = ["BodyBVH"]
+
+#: Below this many points per thread the search runs on one thread (launch overhead dominates).
+_MIN_POINTS_PER_THREAD = 1024
+
+
+@functools.cache
+def _search_pool(workers: int) -> ThreadPoolExecutor:
+    """A shared thread pool for chunked BVH searches (Warp releases the GIL inside a kernel)."""
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="physdrape-bvh")
+
+
+@functools.cache
+def _query_kernels():
+    """Import warp and define the query kernels (first call only)."""
+    wp = warp()
+
+    @wp.kernel(enable_backward=False)
+    def closest_kernel(
+        mesh_ids: wp.array(dtype=wp.uint64),
+        body: wp.array(dtype=wp.int32),
+        points: wp.array(dtype=wp.vec3),
+        max_dist: float,
+        face: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        q = wp.mesh_query_point_no_sign(mesh_ids[body[i]], points[i], max_dist)
+        if q.result:
+            face[i] = q.face
+        else:
+            face[i] = -1
+
+    @wp.kernel(enable_backward=False)
+    def closest_winding_kernel(
+        mesh_ids: wp.array(dtype=wp.uint64),
+        body: wp.array(dtype=wp.int32),
+        points: wp.array(dtype=wp.vec3),
+        max_dist: float,
+        accuracy: float,
+        face: wp.array(dtype=wp.int32),
+        inside: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        q = wp.mesh_query_point_sign_winding_number(mesh_ids[body[i]], points[i], max_dist, accuracy, 0.5)
+        if q.result:
+            face[i] = q.face
+            inside[i] = wp.where(q.sign < 0.0, 1, 0)
+        else:
+            face[i] = -1
+            inside[i] = 0
+
+    return wp, closest_kernel, closest_winding_kernel
+
+
+class BodyBVH:
+    """One Warp BVH per body of a batch sharing one triangle topology.
+
+    Args:
+        verts: body vertex positions [m], shape (B, Vb, 3); copied to float32 (Warp meshes are
+            float32).
+        faces: triangles, shape (Fb, 3) int64, on the device of ``verts``.
+        with_winding_number: also build the winding-number data the inside test needs.
+    """
+
+    def __init__(self, verts: Tensor, faces: Tensor, *, with_winding_number: bool) -> None:
+        wp, _, _ = _query_kernels()
+        self.with_winding_number = with_winding_number
+        self._wp_device = wp.device_from_torch(verts.device)
+        # float32 copies the BVHs point at; must outlive the meshes.
+        self._points32 = verts.detach().to(torch.float32).contiguous().clone()
+        self._indices32 = faces.to(torch.int32).reshape(-1).contiguous()
+        wp_indices = wp.from_torch(self._indices32, dtype=wp.int32)
+        self._meshes = [
+            wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
+                    support_winding_number=with_winding_number)
+            for b in range(verts.shape[0])
+        ]
+        ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
+        self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
+
+    def refit(self, verts: Tensor) -> None:
+        """Move the bodies to new vertex positions of the same shape (B, Vb, 3): refit, no rebuild."""
+        self._points32.copy_(verts.detach())
+        for mesh in self._meshes:
+            mesh.refit()
+
+    def closest_faces(
+        self, points32: Tensor, body: Tensor, *, winding_accuracy: float, threads: int | None = None
+    ) -> tuple[Tensor, Tensor | None]:
+        """Closest face (and winding-number inside flag) per point.
+
+        Args:
+            points32: query points [m], shape (M, 3) float32, contiguous.
+            body: which body each point belongs to, shape (M,) int32, contiguous.
+            winding_accuracy: Warp's fast-winding-number accuracy (see `BodySurface`).
+            threads: CPU threads that share the search (the points are split into chunks launched
+                from a thread pool, bit-for-bit the same result). None = `torch.get_num_threads()`.
+
+        Returns:
+            face: shape (M,) int64; inside: shape (M,) bool, or None without the winding number.
+        """
+        wp, closest_kernel, closest_winding_kernel = _query_kernels()
+        n = points32.shape[0]
+        face = torch.empty(n, dtype=torch.int32, device=points32.device)
+        with_wn = self.with_winding_number
+        inside = torch.empty(n, dtype=torch.int32, device=points32.device) if with_wn else None
+        max_dist = 1.0e30
+
+        def launch(lo: int, hi: int) -> None:
+            points = wp.from_torch(points32[lo:hi], dtype=wp.vec3)
+            owner = wp.from_torch(body[lo:hi], dtype=wp.int32)
+            out_face = wp.from_torch(face[lo:hi], dtype=wp.int32)
+            if with_wn:
+                wp.launch(closest_winding_kernel, dim=hi - lo, device=self._wp_device,
+                          inputs=[self._mesh_ids, owner, points, max_dist, winding_accuracy],
+                          outputs=[out_face, wp.from_torch(inside[lo:hi], dtype=wp.int32)])
+            else:
+                wp.launch(closest_kernel, dim=hi - lo, device=self._wp_device,
+                          inputs=[self._mesh_ids, owner, points, max_dist], outputs=[out_face])
+
+        threads = threads or torch.get_num_threads()
+        chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
+        if chunks > 1:
+            bounds = np.linspace(0, n, chunks + 1).astype(int)
+            pool = _search_pool(chunks)
+            for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
+                job.result()
+        elif n:
+            launch(0, n)
+        if n and int(face.min()) < 0:
+            raise RuntimeError("the body BVH found no triangle for some points: every face of the body is "
+                               "degenerate (zero area); check the body faces")
+        return face.to(torch.int64), (inside.bool() if inside is not None else None)
