@@ -25,7 +25,7 @@ def main(argv=None) -> None:
     ap.add_argument("--workers", type=int, default=1)
     args = ap.parse_args(argv)
 
-    from physdrape.garments.generator import canonical_body
+    from physdrape.garments.canonical import canonical_body
 
     t0 = time.perf_counter()
     canonical_body()
@@ -46,9 +46,10 @@ def main(argv=None) -> None:
               f"workers), {redraws} redraws, verts {min(nv)}-{max(nv)} (mean {sum(nv) / len(nv):.0f}) -> {out}")
         return
 
-    from physdrape.garments.generator import GarmentCategory, _fields, generate_valid_garment
+    from physdrape.garments.body_fields import body_fields
+    from physdrape.garments.generator import GarmentCategory, generate_valid_garment
 
-    _fields(canonical_body())  # per-process setup (body fields, BVHs, kernel compile)
+    body_fields(canonical_body())  # per-process setup (body fields, BVHs, kernel compile)
     generate_valid_garment("tshirt", 10**6)  # warm-up (Warp kernels)
     cats = list(GarmentCategory)
     per_cat, attempts = Counter(), Counter()

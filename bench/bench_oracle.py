@@ -75,7 +75,7 @@ def top_garment(num_verts: int) -> Garment:
 
 def anny_tshirt(target_edge: float):
     """(garment, body surface) for a generated T-shirt on the canonical Anny body, or raise."""
-    from physdrape.garments.generator import canonical_body
+    from physdrape.garments.canonical import canonical_body
     from physdrape.garments.generator import generate_valid_garment
 
     body = canonical_body()

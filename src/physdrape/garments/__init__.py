@@ -13,8 +13,9 @@ Public API (y-up metres on the canonical Anny body):
     render_contact_sheet                             - PNG grid on the body (contact_sheet.py)
 
 Also (not re-exported): `canonical.canonical_body` (the canonical Anny body as numpy, shared by
-the generator and validation), `intersections` (self-intersections, ray hits) and
-`numpy_geometry` (numpy front-ends of `physdrape.geometry`'s vertex normals and body distances).
+the generator and validation), the generator's steps (`body_fields`, `clipping`, `shrink_wrap`),
+`intersections` (self-intersections, ray hits) and `numpy_geometry` (numpy front-ends of
+`physdrape.geometry`'s vertex normals and body distances).
 """
 
 from physdrape.garments.cloth3d import list_cloth3d_garments, load_cloth3d_garment

@@ -20,6 +20,9 @@ Recipe (per garment, deterministic for its parameters):
 5. Local untangling of any remaining self-intersection; every vertex ends ≥ the collision
    margin off the body. `generate_valid_garment` validates and redraws the rare failures.
 
+What the recipe reads off the body is in `body_fields`, the cut (step 2) in `clipping`, steps 4-5
+in `shrink_wrap`; this module holds the parameters, the coverage field and the entry points.
+
 Positions y-up, metres, body facing +z.
 """
 
@@ -29,22 +32,15 @@ import enum
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
+from physdrape.garments.body_fields import BodyFields, body_fields
 from physdrape.garments.canonical import CanonicalBody, canonical_body
-from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces
-from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
+from physdrape.garments.clipping import clip_mesh, fill_crease_holes
+from physdrape.garments.intersections import ray_hit_distances
+from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.garments.remesh import remesh
+from physdrape.garments.shrink_wrap import shrink_wrap
 from physdrape.garments.validate import GarmentError, validate_garment
-from physdrape.geometry.mesh import face_areas
-from physdrape.geometry.topology import (
-    boundary_edges,
-    boundary_loops,
-    connected_components,
-    drop_unused_vertices,
-    undirected_edges,
-    vertex_adjacency,
-)
 
 __all__ = [
     "GarmentCategory",
@@ -60,14 +56,10 @@ __all__ = [
 #: Minimum clearance between a generated garment and the canonical body [m] (DESIGN: ε = 2 mm).
 COLLISION_MARGIN = 2e-3
 
-_DEBUG = False
-#: Height of the armpit hollow below the shoulder joint the parameters are designed for [m].
-_PIT_BELOW_SHOULDER = 0.128
 #: Radius of the hole cut at each armpit hollow and refilled by a web [m].
 _PIT_RADIUS = 0.06
 #: Radius of the hole cut at each inner elbow (long sleeves) and refilled by a web [m].
 _ELBOW_RADIUS = 0.035
-_ARM_PREFIXES = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
 
 
 class GarmentCategory(str, enum.Enum):
@@ -185,93 +177,7 @@ def sample_params(category: GarmentCategory | str, seed: int, *, attempt: int = 
     )
 
 
-# ----------------------------------------------------------------------------- body fields
-class _BodyFields:
-    """Per-body-vertex quantities the coverage field is built from (computed once per body)."""
-
-    def __init__(self, body: CanonicalBody):
-        self.body = body
-        v = body.verts
-        labels = np.array(body.bone_labels)
-        is_arm_bone = np.array([lab.startswith(_ARM_PREFIXES) for lab in labels])
-        dom_arm = is_arm_bone[body.vertex_bone].astype(np.float64)
-        # Smooth the 0/1 arm label over the surface: a soft arm-ness whose 0.5 level is smooth.
-        e = undirected_edges(body.faces)
-        adj = vertex_adjacency(len(v), e)
-        deg = np.asarray(adj.sum(1)).ravel()
-        walk = sp.diags(1.0 / deg) @ adj
-        w = dom_arm
-        for _ in range(12):
-            w = 0.5 * w + 0.5 * (walk @ w)
-        self.arm = w
-        self.side = np.sign(v[:, 0])
-        # Armpit hollows: the lowest point of the arm/torso border on each side (from the
-        # surface alone). Sleeved garments cut a small hole there and fill it with a web.
-        border = np.abs(w - 0.5) < 0.2
-        self.pits = {}
-        for sgn in (1.0, -1.0):
-            m = border & (self.side == sgn) & (v[:, 1] > 0.2)
-            self.pits[sgn] = v[m][np.argmin(v[m, 1])].copy()
-        # Landmarks (shoulder, elbow, wrist, neck) come from the rig's joint heads, moved
-        # vertically so the armpit sits where the garment parameters were designed for (12.8 cm
-        # below the shoulder joint): the cuts then follow the surface, whatever the rig's
-        # convention for its joint heads.
-        dy = float(self.pits[1.0][1] - body.joints["upperarm01.L"][1]) + _PIT_BELOW_SHOULDER
-        joints = {k: j + np.array([0.0, dy, 0.0]) for k, j in body.joints.items()}
-        self.landmark_shift = dy
-        # Arm coordinate s: distance along the shoulder→wrist axis of the vertex's side [m].
-        s = np.zeros(len(v))
-        for sfx, sgn in ((".L", 1.0), (".R", -1.0)):
-            a = joints["upperarm01" + sfx]
-            d = joints["wrist" + sfx] - a
-            d = d / np.linalg.norm(d)
-            m = self.side == sgn
-            s[m] = (v[m] - a) @ d
-        self.s = s
-        self.normals = vertex_normals(v, body.faces)
-        # A low-pass copy of the surface (plain Laplacian: it shrinks a little but never folds,
-        # unlike Taubin) the garment patch is cut from: clefts and creases (gluteal cleft,
-        # clavicle pits) are filled, so the cut loops and the offset sheet do not dive in.
-        # Only the torso is smoothed at full strength: Laplacian smoothing folds a bent tube at
-        # its inner side (the elbow), so the arms are barely touched.
-        xs = v.copy()
-        keep_arm = (0.5 * np.clip(1.0 - w, 0.0, 1.0) ** 2)[:, None]
-        for _ in range(20):
-            xs = xs + keep_arm * (walk @ xs - xs)
-        self.smooth_verts = xs
-        self.smooth_query = BodyDistance(xs, body.faces)
-        self.neck_center = joints["neck01"].copy()
-        self.neck_base = float(joints["neck01"][1]) - 0.035
-        self.shoulders = {sgn: joints["upperarm01" + sfx] for sfx, sgn in ((".L", 1.0), (".R", -1.0))}
-        self.query = BodyDistance(body.verts, body.faces)
-        self.edges = e
-        # Inner-elbow creases: the surface point on the concave side of the elbow bend, and its
-        # arm coordinate s (long sleeves cut and web it like the armpit).
-        self.elbows = {}
-        for sfx, sgn in ((".L", 1.0), (".R", -1.0)):
-            sh, el, wr = (joints[k + sfx] for k in ("upperarm01", "lowerarm01", "wrist"))
-            u = (el - sh) / np.linalg.norm(el - sh)
-            t = (wr - el) / np.linalg.norm(wr - el)
-            concave = (t - u) / np.linalg.norm(t - u)
-            r = v - el
-            along = r @ concave
-            perp = np.linalg.norm(r - along[:, None] * concave, axis=1)
-            m = (self.side == sgn) & (np.linalg.norm(r, axis=1) < 0.08) & (along > 0) & (w > 0.9)
-            k = np.flatnonzero(m)[np.argmin(perp[m])]  # where the concave-side ray leaves the arm
-            self.elbows[sgn] = (v[k].copy(), float(s[k]))
-
-
-_FIELDS: dict[int, _BodyFields] = {}
-
-
-def _fields(body: CanonicalBody) -> _BodyFields:
-    key = id(body)
-    if key not in _FIELDS:
-        _FIELDS[key] = _BodyFields(body)
-    return _FIELDS[key]
-
-
-def coverage_field(p: GarmentParams, f: _BodyFields, x: np.ndarray) -> np.ndarray:
+def coverage_field(p: GarmentParams, f: BodyFields, x: np.ndarray) -> np.ndarray:
     """Signed coverage of points `x` (body vertices) [m-ish]: ≥ 0 where the garment covers."""
     arm, s = f.arm, f.s
     y = x[:, 1]
@@ -303,51 +209,7 @@ def coverage_field(p: GarmentParams, f: _BodyFields, x: np.ndarray) -> np.ndarra
     return np.minimum(np.minimum(phi_hem, phi_neck), phi_arm)
 
 
-def clip_mesh(verts: np.ndarray, faces: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The part of a triangle mesh where the per-vertex field `phi` ≥ 0, cut along phi = 0.
-
-    New vertices sit where the edges cross zero (linear interpolation); cut triangles become
-    one or two triangles with the input's orientation. Returns (verts, faces) with unused
-    vertices dropped.
-    """
-    phi = np.where(phi == 0.0, 1e-12, phi)
-    pos = phi > 0
-    npos = pos[faces].sum(1)
-    keep = faces[npos == 3]
-    cut = faces[(npos == 1) | (npos == 2)]
-    # Rotate each cut triangle so its odd-one-out vertex comes first (keeps the orientation).
-    p = pos[cut]
-    odd = np.where(p.sum(1) == 1, np.argmax(p, 1), np.argmin(p, 1))
-    rot = np.stack([cut[np.arange(len(cut)), (odd + k) % 3] for k in range(3)], 1)
-    a, b, c = rot[:, 0], rot[:, 1], rot[:, 2]
-    # Crossing points on edges ab and ac.
-    pairs = np.concatenate([np.stack([a, b], 1), np.stack([a, c], 1)])
-    key = np.sort(pairs, 1)
-    uniq, inv = np.unique(key, axis=0, return_inverse=True)
-    inv = inv.ravel()
-    t = phi[uniq[:, 0]] / (phi[uniq[:, 0]] - phi[uniq[:, 1]])
-    new_v = verts[uniq[:, 0]] + t[:, None] * (verts[uniq[:, 1]] - verts[uniq[:, 0]])
-    nv = len(verts)
-    ab = nv + inv[: len(cut)]
-    ac = nv + inv[len(cut):]
-    single = pos[a]  # the odd vertex is the only one inside: one triangle
-    tri1 = np.stack([a, ab, ac], 1)[single]
-    two = ~single  # a outside, b and c inside: quad (ab, b, c, ac)
-    tri2 = np.stack([ab[two], b[two], c[two]], 1)
-    tri3 = np.stack([ab[two], c[two], ac[two]], 1)
-    all_v = np.concatenate([verts, new_v])
-    all_f = np.concatenate([keep, tri1, tri2, tri3]).astype(np.int64)
-    return _largest_component(all_v, all_f)
-
-
-def _largest_component(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The face-connected component with the largest area, unused vertices dropped."""
-    face_label = connected_components(len(verts), faces)[faces[:, 0]]
-    keep = face_label == np.bincount(face_label, weights=face_areas(verts, faces)).argmax()
-    return drop_unused_vertices(verts, faces[keep])
-
-
-def _crease_holes(p: GarmentParams, f: _BodyFields) -> list:
+def _crease_holes(p: GarmentParams, f: BodyFields) -> list:
     """(centre, radius) of the holes cut at body creases and refilled by webs."""
     if p.sleeve_length <= 0:
         return []
@@ -356,125 +218,6 @@ def _crease_holes(p: GarmentParams, f: _BodyFields) -> list:
         if p.sleeve_length > s_el + _ELBOW_RADIUS + 0.03:
             holes.append((pt, _ELBOW_RADIUS))
     return holes
-
-
-def _fill_pits(verts: np.ndarray, faces: np.ndarray, f: _BodyFields, holes: list):
-    """Fill the armpit holes with a fan around the loop's centroid (the remesher refines it and
-    the shrink-wrap turns it into a web bridging the armpit crease)."""
-    loops = boundary_loops(faces)
-    directed = {(int(a), int(b)) for a, b in np.concatenate(
-        [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])}
-    new_v, new_f = [verts], [faces]
-    nv = len(verts)
-    for pit, radius in holes:
-        if not loops:
-            break
-        k = int(np.argmin([np.linalg.norm(verts[l].mean(0) - pit) for l in loops]))
-        if np.linalg.norm(verts[loops[k]].mean(0) - pit) > 1.5 * radius:
-            continue
-        loop = loops.pop(k)
-        a, b = int(loop[0]), int(loop[1])
-        if (a, b) in directed:  # the faces use a→b, so the fill must run b→a
-            loop = loop[::-1]
-        new_v.append(verts[loop].mean(0, keepdims=True))
-        nxt = np.roll(loop, -1)
-        new_f.append(np.stack([loop, nxt, np.full(len(loop), nv)], 1))
-        nv += 1
-    return np.concatenate(new_v), np.concatenate(new_f).astype(np.int64)
-
-
-def _smoother(faces: np.ndarray, nv: int):
-    """One smoothing sweep: Laplacian on interior vertices (bridges concavities), Taubin λ|μ
-    along boundary loops (smooths the loop without shrinking it). Returns (sweep, adjacency)."""
-    e = undirected_edges(faces)
-    be = boundary_edges(faces)
-    on_b = np.zeros(nv, bool)
-    on_b[be.ravel()] = True
-
-    def walk_of(edges, rows):
-        w = vertex_adjacency(nv, edges)
-        walk = sp.diags(1.0 / np.maximum(np.asarray(w.sum(1)).ravel(), 1)) @ w
-        return (sp.diags(rows.astype(float)) @ walk + sp.diags((~rows).astype(float))).tocsr()
-
-    w_in = walk_of(e, ~on_b)
-    w_b = walk_of(be, on_b) if len(be) else sp.identity(nv, format="csr")
-
-    def sweep(x: np.ndarray) -> np.ndarray:
-        x = 0.5 * x + 0.5 * (w_in @ x)
-        x = x + 0.5 * (w_b @ x - x)
-        return x - 0.53 * (w_b @ x - x)
-
-    return sweep, vertex_adjacency(nv, e)
-
-
-def _shrink_wrap(
-    x: np.ndarray, faces: np.ndarray, offset: np.ndarray, f: _BodyFields, *, iterations: int,
-    smooth_weight: np.ndarray | None = None,
-) -> np.ndarray:
-    """Offset surface that bridges concavities: smooth, then push out to ≥ `offset` (V,)."""
-    sweep, adj = _smoother(faces, len(x))
-    deg = np.maximum(np.asarray(adj.sum(1)).ravel(), 1)
-    avg = sp.diags(1.0 / deg) @ adj
-    # First against the smoothed (cleft-free) body, then a few sweeps against the real one.
-    # Smoothing strength per vertex: full on the torso (bridges the armpit and other creases),
-    # weak on the sleeves, whose tubes it would only shrink and pleat.
-    a = np.ones((len(x), 1)) if smooth_weight is None else smooth_weight[:, None]
-    for it in range(iterations + 10):
-        query = f.smooth_query if it < iterations else f.query
-        x = x + a * (sweep(x) - x)
-        d, c, n = query(x)
-        # Push-out displacement to the offset along the body normal, averaged over neighbours
-        # before it is applied: across a crease the pushes of neighbouring vertices point at
-        # each other and would fold the sheet; their average points out of it.
-        disp = np.where((d < offset)[:, None], c + n * offset[:, None] - x, 0.0)
-        for _ in range(2):
-            disp = 0.5 * disp + 0.5 * (avg @ disp)
-        x = x + a * disp
-        if it >= iterations:
-            x = _relax_tangential(x, faces, adj)
-    return _untangle(x, faces, sweep, adj, f)
-
-
-def _relax_tangential(x: np.ndarray, faces: np.ndarray, adj, step: float = 0.5) -> np.ndarray:
-    """Uniform Laplacian step with its normal component removed (evens out the triangles)."""
-    nrm = vertex_normals(x, faces)
-    delta = (adj @ x) / np.maximum(np.asarray(adj.sum(1)), 1) - x
-    return x + step * (delta - (delta * nrm).sum(1, keepdims=True) * nrm)
-
-
-def _untangle(x, faces, sweep, adj, f: _BodyFields, *, rounds: int = 15) -> np.ndarray:
-    """Remove self-intersections left in creases by local smoothing that keeps the margin.
-
-    Each round smooths the vertices of intersecting faces and a few rings around them (the
-    crease is bridged instead of pushed apart) and pushes out, along the sheet's own normal,
-    only the vertices closer to the body than the margin.
-    """
-    clear = COLLISION_MARGIN + 1e-3
-    for _ in range(rounds):
-        bad = self_intersecting_faces(x, faces)
-        if _DEBUG:
-            print("untangle", len(bad))
-        if len(bad) == 0:
-            break
-        sel = np.zeros(len(x), float)
-        sel[faces[bad].ravel()] = 1.0
-        for _ in range(4):
-            sel = np.maximum(sel, (adj @ sel > 0).astype(float))
-        m = sel > 0
-        for k in range(8):
-            xs = sweep(x)
-            if k % 2:  # alternate with tangential relaxation, which unfolds small pleats
-                xs = _relax_tangential(x, faces, adj)
-            x[m] = xs[m]
-            # Push along the sheet's own normal: in a cleft the body normals of neighbouring
-            # vertices point at each other, the smoothed sheet's normal points out of it.
-            d, _, _ = f.query(x[m])
-            ng = vertex_normals(x, faces)[m]
-            x[m] = x[m] + ng * np.clip(clear - d, 0.0, None)[:, None]
-    d, c, n = f.query(x)
-    low = d < clear - 5e-4
-    x[low] = c[low] + n[low] * clear
-    return x
 
 
 def generate_garment(
@@ -496,12 +239,12 @@ def generate_garment(
         the garment; deterministic for given params and body.
     """
     body = canonical_body() if body is None else body
-    f = _fields(body)
+    f = body_fields(body)
     phi = coverage_field(params, f, body.verts)
     v, fa = clip_mesh(f.smooth_verts, body.faces, phi)
     holes = _crease_holes(params, f)
     if holes:
-        v, fa = _fill_pits(v, fa, f, holes)
+        v, fa = fill_crease_holes(v, fa, holes)
     # The offset stretches the sheet by a few per cent: aim the remesher a little short.
     v, fa = remesh(v, fa, target_edge=0.92 * target_edge)
     # Offsets per garment vertex from the nearest body vertex's arm-ness and height.
@@ -529,7 +272,8 @@ def generate_garment(
     # nearly final here and the iterations below mostly shape the torso.
     sink = np.clip(-f.query(v)[0], 0.0, None)
     v = v + vertex_normals(v, fa) * (offset + sink)[:, None]
-    v = _shrink_wrap(v, fa, offset, f, iterations=wrap_iterations, smooth_weight=weight)
+    v = shrink_wrap(v, fa, offset, f, iterations=wrap_iterations, margin=COLLISION_MARGIN,
+                    smooth_weight=weight)
     return GarmentTemplate(verts=v, faces=fa, params=params, name=f"{params.category.value}_{params.seed}")
 
 

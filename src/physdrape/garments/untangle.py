@@ -9,7 +9,7 @@ where it is:
    moved out along the body normal until it clears the inner face by `gap`, the inner one is moved
    in by up to half of that (never closer to the body than the margin); each move is spread over
    a few rings of neighbours so the sheet does not crease;
-2. smoothing fallback (rounds with crossings left, as `generator._untangle`): vertices around the
+2. smoothing fallback (rounds with crossings left, as in `shrink_wrap`): vertices around the
    remaining crossings alternate Laplacian and tangential relaxation steps, then are pushed back
    out to the margin along the sheet normal;
 3. every vertex closer to the body than the margin is put at margin + 0.5 mm (first, and after
