@@ -1,7 +1,7 @@
 """PhysDrape model benchmark: inference per garment and a training step, CPU default vs paper size.
 
 Run: .venv/bin/python bench/bench_model.py [--repeats 5] [--threads 0] [--sizes 32x4 32x4l4 128x16]
-    [--solvers explicit jacobi two_level]
+    [--solvers explicit two_level]
 (a size is latent x blocks, optionally l + coarse graph levels; a solver is the stretching
 solver's kind, `model.stretching_solver.SolverKind`).
 Garments: open tubes of ~4k vertices; bodies: icospheres of ~10k vertices (the body query cost
@@ -26,6 +26,14 @@ from physdrape.physics import Cloth
 from physdrape.train.loss import LossConfig, drape_loss
 
 
+#: Each solver kind's step scale and settings, as its training configs set them
+#: (configs/cpu_default.yaml, configs/cpu_two_level.yaml).
+SETTINGS = {
+    "explicit": dict(eta=1e-3, gamma=0.9, max_step=5e-3),
+    "two_level": dict(eta=1.0, gamma=0.98, max_step=1e-2, requery_every=3),
+}
+
+
 def problem(batch_size: int, num_verts: int) -> DrapeInput:
     segments = int(round((num_verts * 2.5) ** 0.5))
     rings = round(num_verts / segments)
@@ -46,7 +54,8 @@ def main() -> None:
     parser.add_argument("--verts", type=int, default=4000)
     parser.add_argument("--sizes", nargs="+", default=["32x4", "32x4l4", "64x8", "128x16"],
                         help="latent x blocks [l levels], e.g. 32x4l4")
-    parser.add_argument("--solvers", nargs="+", default=["explicit", "jacobi", "two_level"], help="stretching solver kinds")
+    parser.add_argument("--solvers", nargs="+", default=["explicit", "two_level"], choices=list(SETTINGS),
+                        help="stretching solver kinds")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -61,9 +70,7 @@ def main() -> None:
         latent, blocks = (int(v) for v in dims.split("x"))
         levels = int(levels or 0)
         torch.manual_seed(0)
-        # each kind's own step scale and settings, as its training configs set them
-        kind = {"explicit": {}, "jacobi": dict(eta=1.0, momentum=0.8), "two_level": dict(eta=1.0, requery_every=3)}[solver]
-        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, solver=solver, **kind))
+        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, solver=solver, **SETTINGS[solver]))
         model.accumulate_statistics(single)
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-5)
         params = sum(p.numel() for p in model.parameters())
@@ -76,7 +83,8 @@ def main() -> None:
         def train(batch):
             model.train()
             out = model(batch)
-            loss, _ = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, LossConfig())
+            loss, _ = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, LossConfig(),
+                                 contact_stiffness=model.config.contact_stiffness, margin=model.config.margin)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
