@@ -43,11 +43,12 @@ def main() -> None:
 
     import torch
 
-    from physdrape import api
+    from physdrape.api import Draper
+    from physdrape.checkpoint import bundled_model
 
     checkpoint = args.checkpoint
     if checkpoint is None:
-        checkpoint = str(api.default_checkpoint()) if api.default_checkpoint().exists() else str(ROOT / "runs" / "cpu_default")
+        checkpoint = str(bundled_model()) if bundled_model().exists() else str(ROOT / "runs" / "cpu_default")
     env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
     rows: list[tuple[str, float, str]] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -60,7 +61,7 @@ def main() -> None:
         rows.append(("cold API (new process: import, load, 1 drape)", statistics.median(cold_api), "s"))
 
         torch.set_num_threads(args.threads)
-        draper = api.Draper(checkpoint)
+        draper = Draper(checkpoint)
         draper.drape("default")  # fits and caches the skinning transfer
         warm, warm_out = [], []
         for k in range(args.repeats):

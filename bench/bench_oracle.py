@@ -32,7 +32,7 @@ from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import open_cylinder
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth
-from physdrape.physics import oracle as oracle_mod
+from physdrape.physics.oracle import linalg as oracle_mod
 from physdrape.physics.hessians import bend_gauss_newton_hessian, bend_hessian, strain_hessian
 from physdrape.physics.oracle import relax
 

@@ -26,14 +26,16 @@ import time
 
 import torch
 
+from physdrape.body.anny_body import get_anny_body
 from physdrape.eval.evaluate import (
+    Contact,
     EvalConfig,
     _test_instances,
-    load_model,
     run_model,
     run_oracle,
     total_energy,
 )
+from physdrape.checkpoint import load_model
 from physdrape.model import Variant
 
 
@@ -74,7 +76,8 @@ def main(argv=None) -> int:
     model, info = load_model(args.checkpoint, variant=Variant.FULL)
     print(f"checkpoint {info['path']} (step {info['step']}); {args.instances} instances, seed {args.seed}, "
           f"oracle budget {args.oracle_budget} s, {args.threads} thread(s), {torch.get_num_threads()} torch threads")
-    instances, _ = _test_instances(config)
+    contact = Contact.of(model)
+    instances = _test_instances(config, get_anny_body())
     rows = []
     for inst in instances:
         batch, _, skinned = inst.batch()  # (also the warm-up of the kinematic init)
@@ -87,9 +90,9 @@ def main(argv=None) -> int:
                 x, wall = run_model(model, batch, steps=steps)
                 times.append(wall)
             row[f"model_t{steps}_s"] = row["init_s"] + statistics.median(times)  # X_init + model, as a user pays
-            row[f"model_t{steps}_energy"] = float(total_energy(x, batch)[0])
+            row[f"model_t{steps}_energy"] = float(total_energy(x, batch, contact)[0])
         t0 = time.perf_counter()
-        result = run_oracle(batch, config, skinned)
+        result = run_oracle(batch, config, contact, skinned)
         row["oracle_wall_s"] = time.perf_counter() - t0
         row["oracle_converged"] = bool(result.converged)
         row["oracle_reason"] = result.reason

@@ -94,17 +94,19 @@ except ImportError as exc:  # optional, bench-only dependency
           f"({exc}).\nInstall it with:\n    {INSTALL_HINT}", file=sys.stderr)
     sys.exit(2)
 
+from physdrape.body.anny_body import get_anny_body
 from physdrape.eval.evaluate import (
+    Contact,
     EvalConfig,
     _metrics,
     _test_instances,
-    load_model,
     run_model,
     total_energy,
 )
+from physdrape.checkpoint import load_model
 from physdrape.model import Variant
 from physdrape.physics import Material
-from physdrape.physics.collision import DEFAULT_MARGIN
+from physdrape.physics.contact import DEFAULT_MARGIN
 from physdrape.physics.forces import energy_terms
 
 DEFAULT_CHECKPOINT = "src/physdrape/assets/models/cpu_default"
@@ -197,21 +199,21 @@ class VBDSim:
         return float(v.max()), float(np.percentile(v, 99))
 
 
-def energy_record(x: torch.Tensor, batch) -> dict:
+def energy_record(x: torch.Tensor, batch, contact: Contact) -> dict:
     """OUR total energy and its terms [J] at x: strain, bend, gravity, contact (= total - the others)."""
     with torch.no_grad():
         terms = {k: float(v[0]) for k, v in energy_terms(x, batch.cloth).items()}
-    total = float(total_energy(x, batch)[0])
+    total = float(total_energy(x, batch, contact)[0])
     return {"energy": total, **terms, "contact": total - sum(terms.values())}
 
 
-def simulate(batch, args, material: Material, target_energy: float) -> dict:
+def simulate(batch, args, material: Material, target_energy: float, contact: Contact) -> dict:
     """Runs VBD on one instance; returns its numbers and (wall, sim time, energy, max speed) history."""
     sim = VBDSim(batch, args, material)
     dtype = batch.x_init.dtype
     steps_per_check = max(1, round(args.check_every / args.dt))
     checks_per_window = max(1, round(args.settle_window / (steps_per_check * args.dt)))
-    history = [{"wall": 0.0, "sim_t": 0.0, **energy_record(sim.positions(dtype), batch), "max_speed": 0.0,
+    history = [{"wall": 0.0, "sim_t": 0.0, **energy_record(sim.positions(dtype), batch, contact), "max_speed": 0.0,
                 "p99_speed": 0.0}]
     wall, steps, reason = 0.0, 0, "budget"
     while True:
@@ -227,7 +229,7 @@ def simulate(batch, args, material: Material, target_energy: float) -> dict:
             reason = "diverged (non-finite positions)"
             break
         speed, speed_p99 = sim.speeds()
-        history.append({"wall": wall, "sim_t": steps * args.dt, **energy_record(x, batch), "max_speed": speed,
+        history.append({"wall": wall, "sim_t": steps * args.dt, **energy_record(x, batch, contact), "max_speed": speed,
                         "p99_speed": speed_p99})
         if args.verbose:
             h = history[-1]
@@ -245,7 +247,7 @@ def simulate(batch, args, material: Material, target_energy: float) -> dict:
         if wall >= args.budget:
             break
     x = sim.positions(dtype)
-    final = _metrics(x, batch) if torch.isfinite(x).all() else {}
+    final = _metrics(x, batch, contact) if torch.isfinite(x).all() else {}
     reached = next((h["wall"] for h in history if h["energy"] <= target_energy), math.inf)
     return {"vbd_setup_s": sim.setup_s, "vbd_wall_s": wall, "vbd_sim_s": steps * args.dt, "vbd_steps": steps,
             "vbd_reason": reason, "vbd_to_model_energy_s": reached, "vbd_final": final, "vbd_history": history}
@@ -311,12 +313,13 @@ def main(argv=None) -> int:
     print(f"checkpoint {info['path']} (step {info['step']}); {args.instances} instances, seed {args.seed}; "
           f"VBD (newton {newton.__version__}, warp {wp.__version__}, CPU): budget {args.budget} s, dt {args.dt:.4g} s, "
           f"{args.iterations} iterations, drag {args.drag}/s; torch threads {torch.get_num_threads()}")
-    instances, _ = _test_instances(config)
+    contact = Contact.of(model)
+    instances = _test_instances(config, get_anny_body())
     rows = []
     for inst in instances:
         batch, _, skinned = inst.batch()  # (also the warm-up of the kinematic init)
         row = {"garment": inst.garment, "num_verts": inst.num_verts, "body": inst.body_index,
-               "start_energy": float(total_energy(skinned, batch)[0])}
+               "start_energy": float(total_energy(skinned, batch, contact)[0])}
         init_s = statistics.median(inst.batch()[1] for _ in range(args.repeats))
         run_model(model, batch, steps=args.model_steps)  # warm-up
         times, x = [], None
@@ -324,9 +327,10 @@ def main(argv=None) -> int:
             x, wall = run_model(model, batch, steps=args.model_steps)
             times.append(wall)
         row["model_s"] = init_s + statistics.median(times)  # X_init + model, as a user pays
-        row["model"] = _metrics(x, batch)
+        row["model"] = _metrics(x, batch, contact)
         # VBD starts from the plain skinned garment, like the oracle (the pull-back is the model's).
-        row.update(simulate(dataclasses.replace(batch, x_init=skinned), args, material, row["model"]["energy_total"]))
+        row.update(simulate(dataclasses.replace(batch, x_init=skinned), args, material, row["model"]["energy_total"],
+                            contact))
         rows.append(row)
         brief = {k: v for k, v in row.items() if k != "vbd_history"}
         print(json.dumps(_finite_or_none(brief)), file=sys.stderr)

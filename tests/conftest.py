@@ -30,7 +30,7 @@ def write_tiny_checkpoint(run_dir) -> str:
     from physdrape.config_io import to_mapping
     from physdrape.model import PhysDrape
     from physdrape.model.config import ModelConfig
-    from physdrape.train.checkpoint import save_checkpoint
+    from physdrape.checkpoint import save_checkpoint
 
     torch.manual_seed(0)
     config = ModelConfig(latent=8, blocks=1, solver="two_level", eta=1.0, gamma=0.98, max_step=0.01, requery_every=3)
@@ -48,6 +48,17 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="session")
+def tiny_split(tmp_path_factory) -> str:
+    """A garment split of 2 training and 2 test garments (seconds to generate), so that no test
+    needs the full 600/30 split a user generates on first training or evaluation."""
+    from physdrape.garments.split import make_split
+
+    out = tmp_path_factory.mktemp("tiny_split")
+    make_split(out, seed=0, num_train=2, num_test=2)
+    return str(out)
 
 
 @pytest.fixture(scope="session")

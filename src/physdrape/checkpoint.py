@@ -1,12 +1,15 @@
 """Checkpoints: safetensors tensors + JSON, written atomically; nothing is ever unpickled.
 
-A checkpoint is a directory `step-XXXXXXXX/` holding
+A checkpoint is a directory `step-XXXXXXXX/` (or any directory, for an exported model) holding
 - `model.safetensors`: the model's parameters and buffers (normaliser statistics included),
-- `config.json`: the resolved run configuration (enough to rebuild the model),
+- `config.json`: the resolved run configuration (its ``train.model`` section rebuilds the model),
 - `train_state.safetensors` + `train_state.json` (optional): optimiser moments, RNG states, step.
-It is written under a temporary name and renamed into place, and `latest` (a one-line text file
-naming the newest checkpoint) is replaced atomically after it, so a crash never leaves a
-half-written checkpoint behind a `latest` pointer.
+A run directory holds several checkpoints and `latest`, a one-line text file naming the newest.
+Checkpoints are written under a temporary name and renamed into place, and `latest` is replaced
+atomically after it, so a crash never leaves a half-written checkpoint behind a `latest` pointer.
+
+This module is the only place that reads or writes them: the API, training, evaluation and the
+CLI load models with `load_model` and resolve run directories with `resolve`.
 """
 
 from __future__ import annotations
@@ -14,18 +17,47 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from dataclasses import replace
+from importlib.resources import files
 from pathlib import Path
 
 import torch
 from safetensors.torch import load_file, save_file
 
 from physdrape.atomic import atomic_directory, write_text
+from physdrape.config_io import ConfigError, from_mapping
+from physdrape.model import ModelConfig, PhysDrape, Variant
 
 LATEST = "latest"
+MODEL_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
 
 
 class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read; the message says which file and what to do."""
+
+
+def bundled_model() -> Path:
+    """Where the bundled model lives: ``physdrape/assets/models/cpu_default``."""
+    return Path(str(files("physdrape") / "assets" / "models" / "cpu_default"))
+
+
+def resolve(path: str | os.PathLike) -> Path:
+    """The checkpoint directory `path` names: itself, or for a run directory the checkpoint its
+    `latest` file points at. CheckpointError (naming the file and the fix) when there is none."""
+    path = Path(path).expanduser()
+    if not path.exists():
+        raise CheckpointError(
+            f"{path} does not exist: give a checkpoint directory (model.safetensors + config.json) or a training "
+            "run directory (with a `latest` file); train one with `physdrape train --config CONFIG --run-dir DIR`")
+    if not path.is_dir():
+        raise CheckpointError(f"{path} is a file: give the checkpoint directory that holds {MODEL_FILE} and "
+                              f"{CONFIG_FILE} (or a run directory)")
+    if (path / LATEST).is_file():
+        latest = latest_checkpoint(path)
+        assert latest is not None
+        return latest
+    return path
 
 
 def optimizer_to_tensors(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
@@ -96,18 +128,59 @@ def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:
 
 
 def read_checkpoint(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict]:
-    """(model tensors, config) of a checkpoint directory (or of run_dir's latest)."""
-    path = Path(path)
-    if (path / LATEST).is_file():
-        path = latest_checkpoint(path)
-    weights, config = path / "model.safetensors", path / "config.json"
+    """(model tensors, config) of a checkpoint directory (or of a run directory's latest)."""
+    path = resolve(path)
+    weights, config = path / MODEL_FILE, path / CONFIG_FILE
     for needed in (weights, config):
         if not needed.is_file():
-            raise CheckpointError(f"{needed} is missing: a PhysDrape checkpoint is a directory with model.safetensors and config.json")
+            raise CheckpointError(f"{needed} is missing: a PhysDrape checkpoint is a directory with {MODEL_FILE} and "
+                                  f"{CONFIG_FILE}; {_FIX}")
     try:
-        return load_file(weights), json.loads(config.read_text())
-    except Exception as exc:
-        raise CheckpointError(f"cannot read checkpoint {path}: {exc}") from exc
+        tensors = load_file(weights)
+    except Exception as exc:  # safetensors raises its own error types on damaged files
+        raise CheckpointError(f"{weights} is damaged or not a safetensors file ({exc}); {_FIX}") from None
+    try:
+        return tensors, json.loads(config.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CheckpointError(f"{config} is not valid JSON ({exc}); {_FIX}") from None
+
+
+#: What to do about a checkpoint that cannot be read.
+_FIX = ("point to another checkpoint, re-export it from its run directory (python -m physdrape.train.ship), or for "
+        "the bundled model reinstall PhysDrape (pip install -e .)")
+
+
+def load_model(path: str | os.PathLike, *, variant: Variant | None = None) -> tuple[PhysDrape, dict]:
+    """The model of a checkpoint (directory, or a run directory: its latest), in eval mode, its
+    network in the dtype it was trained in, switched to `variant` when given.
+
+    Returns (model, info {"path", "step", "variant", "eval_steps", "dtype"}).
+    """
+    path = resolve(path)
+    tensors, config = read_checkpoint(path)
+    train = config.get("train") if isinstance(config.get("train"), dict) else {}
+    if "model" not in train:
+        raise CheckpointError(f"{path / CONFIG_FILE} has no train.model section: not a PhysDrape checkpoint; {_FIX}")
+    try:
+        model_cfg = from_mapping(ModelConfig, train["model"], where=f"{path / CONFIG_FILE}:train.model")
+    except ConfigError as exc:
+        raise CheckpointError(f"{exc}; the checkpoint was written by another PhysDrape version or edited: {_FIX}") from None
+    if variant is not None:
+        model_cfg = replace(model_cfg, variant=variant)
+    dtype = getattr(torch, str(train.get("dtype", "float32")), None)
+    if dtype not in (torch.float32, torch.float64):
+        raise CheckpointError(f"{path / CONFIG_FILE}: train.dtype {train.get('dtype')!r} is not float32 or float64")
+    model = PhysDrape(model_cfg).to(dtype)
+    try:
+        model.load_state_dict(tensors)
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path / MODEL_FILE} does not match its {CONFIG_FILE} ({exc}); {_FIX}") from None
+    model.eval()
+    step = path.name.split("-")[-1]
+    info = {"path": str(path.resolve()), "step": int(step) if step.isdigit() else None,
+            "variant": model_cfg.variant.value, "eval_steps": model_cfg.eval_steps,
+            "dtype": str(dtype).removeprefix("torch.")}
+    return model, info
 
 
 def read_train_state(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
@@ -121,10 +194,8 @@ def read_train_state(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
 def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike) -> Path:
     """Copy a checkpoint's model (model.safetensors + config.json, no training state) to out_dir,
     atomically: the form in which a trained model is shipped and loaded for inference."""
-    source = Path(checkpoint)
-    if (source / LATEST).is_file():
-        source = latest_checkpoint(source)
-    weights, config = read_checkpoint(source)  # validates that both files are readable
+    source = resolve(checkpoint)
+    _, config = read_checkpoint(source)  # validates that both files are readable
     with atomic_directory(out_dir) as tmp:
         shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps({**config, "exported_from": source.name}, indent=2, sort_keys=True))

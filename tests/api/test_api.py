@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from physdrape import api
+from physdrape import api, checkpoint
 from physdrape.api import DrapeError, Draper
 from physdrape.physics.material import Material
 from physdrape.physics.presets import MATERIAL_PRESETS, TRAINED_RANGES, material_preset
@@ -62,9 +62,10 @@ def test_presets_inside_trained_ranges():
 
 def test_skinning_transfer_is_cached(draper):
     draper.drape("default")
-    count = len(draper._transfers)
+    template = draper.garment("default")
+    first = draper.transfer(template, "anny")
     draper.drape("default", pose="stand")
-    assert len(draper._transfers) == count
+    assert draper.transfer(template, "anny") is first
 
 
 def test_pose_specs(draper, anny_body):
@@ -82,7 +83,7 @@ def test_pose_specs(draper, anny_body):
         ({"shape": {"weight": 1.5}}, r"outside \[0, 1\]"),
         ({"shape": {"wieght": 0.5}}, "unknown phenotypes"),
         ({"pose": np.zeros((3, 3))}, "axis-angles of shape"),
-        ({"garments": "no/such/file.obj"}, "neither a file"),
+        ({"garments": "no/such/file.obj"}, "no such file"),
         ({"garments": "hoodie:3"}, "CATEGORY:SEED"),
     ],
 )
@@ -103,7 +104,7 @@ def test_garment_in_centimetres_is_refused(draper):
 
 
 def test_missing_checkpoint_says_how_to_get_one(tmp_path, monkeypatch):
-    monkeypatch.setattr(api, "default_checkpoint", lambda: tmp_path / "nothing")
+    monkeypatch.setattr(checkpoint, "bundled_model", lambda: tmp_path / "nothing")
     with pytest.raises(DrapeError, match="physdrape train"):
         Draper()
     with pytest.raises(DrapeError, match="does not exist"):
@@ -145,7 +146,7 @@ def test_readme_example_runs(tiny_checkpoint, anny_body, tmp_path, monkeypatch):
     code = match.group(1)
     doc = re.search(r"Example.*?::\n\n(.*?)\n\n(?=Conventions)", api.__doc__, re.DOTALL)
     assert textwrap.dedent(doc.group(1)).strip() == code.strip(), "README and api docstring examples differ"
-    monkeypatch.setattr(api, "default_checkpoint", lambda: Path(tiny_checkpoint))
+    monkeypatch.setattr(checkpoint, "bundled_model", lambda: Path(tiny_checkpoint))
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README", "exec"), {})  # noqa: S102 - the snippet is our own docstring
     assert (tmp_path / "out" / "drape.glb").is_file() and (tmp_path / "out" / "render.png").is_file()
@@ -154,12 +155,12 @@ def test_readme_example_runs(tiny_checkpoint, anny_body, tmp_path, monkeypatch):
 def test_module_level_drape_reuses_one_draper(tiny_checkpoint, anny_body, monkeypatch):
     import physdrape
 
-    monkeypatch.setattr(api, "default_checkpoint", lambda: Path(tiny_checkpoint))
-    monkeypatch.setattr(api, "_DEFAULT_DRAPER", None)
+    monkeypatch.setattr(checkpoint, "bundled_model", lambda: Path(tiny_checkpoint))
+    monkeypatch.setattr(api.draper, "_DEFAULT_DRAPER", None)
     [a] = physdrape.drape("default", pose="rest")
-    first = api._DEFAULT_DRAPER
+    first = api.draper._DEFAULT_DRAPER
     [b] = physdrape.drape("default", pose="rest")
-    assert api._DEFAULT_DRAPER is first and physdrape.Draper is Draper
+    assert api.draper._DEFAULT_DRAPER is first and physdrape.Draper is Draper
     np.testing.assert_array_equal(a.verts, b.verts)
 
 

@@ -68,6 +68,7 @@ def test_warm_start_carries_a_skinned_garment_exactly(smpl_draper, files):
     carried positions are strain-limited against frame t's body like the skinned ones)."""
     from dataclasses import replace
 
+    from physdrape.api import sequences
     from physdrape.body.model import BodyState
 
     template = smpl_draper.garment(str(files["band"]))
@@ -80,8 +81,8 @@ def test_warm_start_carries_a_skinned_garment_exactly(smpl_draper, files):
                for b in range(2)]
     x0 = replace(transfer, max_stretch=None).apply(singles[0])[0]
     x1 = transfer.apply(singles[1])[0]
-    a0, a1 = (smpl_draper._blended_affine(template, "smpl", s) for s in singles)
-    carried = smpl_draper._warm_init(template, "smpl", x0, a0, a1, singles[1])
+    a0, a1 = (sequences.blended_transforms(transfer, s) for s in singles)
+    carried = sequences.carried_init(transfer, x0, a0, a1, singles[1])
     assert (carried - x1).abs().max() < 1e-6
 
 

@@ -14,27 +14,29 @@ import trimesh
 from physdrape.config_io import to_mapping
 from physdrape.eval.evaluate import (
     ABLATION_ROWS,
+    Contact,
     MAIN_ROWS,
-    PUBLISHED_NOTE,
     EvalConfig,
     InstanceInput,
     _evaluate_set,
     _Instance,
     evaluate,
-    load_model,
-    render_markdown,
-    write_results,
 )
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.physics import Cloth, Material
-from physdrape.train.checkpoint import save_checkpoint
+from physdrape.checkpoint import load_model, save_checkpoint
+from physdrape.eval.report import PUBLISHED_NOTE, render_markdown, write_results
 from physdrape.train.trainer import TrainConfig
 
-# max_iters (not the wall-time budget) stops the oracle: deterministic.
-TINY = EvalConfig(instances=2, max_garments=2, oracle_budget_s=60.0, oracle_max_iters=2)
+
+
+@pytest.fixture(scope="module")
+def tiny(tiny_split) -> EvalConfig:
+    """2 instances of the tiny split; max_iters (not the wall-time budget) stops the oracle: deterministic."""
+    return EvalConfig(instances=2, max_garments=2, oracle_budget_s=60.0, oracle_max_iters=2, split_dir=tiny_split)
 
 
 def tiny_checkpoint(root, seed: int = 0):
@@ -49,8 +51,8 @@ def checkpoint(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def results(checkpoint, anny_body):
-    return evaluate(checkpoint, TINY, body=anny_body, command="test", log=lambda _: None)
+def results(checkpoint, anny_body, tiny):
+    return evaluate(checkpoint, tiny, body=anny_body, command="test", log=lambda _: None)
 
 
 def all_summaries(res):
@@ -62,10 +64,10 @@ def all_summaries(res):
     yield "x_init", data["x_init"]["summary"]
 
 
-def test_both_tables_have_all_rows_with_finite_numbers(results):
+def test_both_tables_have_all_rows_with_finite_numbers(results, tiny):
     data = results["sets"]["test"]
     assert set(data["rows"]) == {s.key for s in MAIN_ROWS} | {f"ablation:{s.key}" for s in ABLATION_ROWS}
-    assert len(data["oracle"]["per_instance"]) == TINY.instances
+    assert len(data["oracle"]["per_instance"]) == tiny.instances
     for key, summary in all_summaries(results):
         for name in ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "energy_total", "wall_s",
                      "strain_ratio", "bend_ratio"):
@@ -109,8 +111,8 @@ def test_reference_is_the_lower_energy_oracle_result_and_refining_never_raises_t
     assert "| Oracle refining PhysDrape (T=15) (" in md and "| Reference (lower E_total per instance;" in md
 
 
-def test_without_refinement_the_reference_is_the_oracle(checkpoint, anny_body):
-    res = evaluate(checkpoint, replace(TINY, instances=1, oracle_refine=False), body=anny_body, command="test",
+def test_without_refinement_the_reference_is_the_oracle(checkpoint, anny_body, tiny):
+    res = evaluate(checkpoint, replace(tiny, instances=1, oracle_refine=False), body=anny_body, command="test",
                    log=lambda _: None)
     data = res["sets"]["test"]
     assert data["oracle_refined"] is None
@@ -128,8 +130,8 @@ def test_paper_rows_are_labelled_as_context(results):
     assert results["published"]["note"] == PUBLISHED_NOTE
 
 
-def test_tables_are_reproducible_for_a_seed(checkpoint, anny_body, results):
-    again = evaluate(checkpoint, TINY, body=anny_body, command="test", log=lambda _: None)
+def test_tables_are_reproducible_for_a_seed(checkpoint, anny_body, results, tiny):
+    again = evaluate(checkpoint, tiny, body=anny_body, command="test", log=lambda _: None)
     assert render_markdown(again, timing=False) == render_markdown(results, timing=False)
     for key, row in results["sets"]["test"]["rows"].items():
         for a, b in zip(row["per_instance"], again["sets"]["test"]["rows"][key]["per_instance"]):
@@ -137,7 +139,7 @@ def test_tables_are_reproducible_for_a_seed(checkpoint, anny_body, results):
             assert {k: v for k, v in a.items() if k not in timing} == {k: v for k, v in b.items() if k not in timing}
 
 
-def test_switched_variants_share_the_weights_and_ablation_checkpoints_are_used(checkpoint, tmp_path):
+def test_switched_variants_share_the_weights_and_ablation_checkpoints_are_used(checkpoint, tmp_path, tiny):
     full, info = load_model(checkpoint, variant=Variant.FULL)
     gnn, _ = load_model(checkpoint.parent, variant=Variant.GNN_ONLY)  # a run directory: its latest
     assert info["step"] == 1 and gnn.config.variant is Variant.GNN_ONLY
@@ -145,7 +147,7 @@ def test_switched_variants_share_the_weights_and_ablation_checkpoints_are_used(c
         torch.testing.assert_close(a, b, msg=name)
     other = tiny_checkpoint(tmp_path / "gnn", seed=1)
     with pytest.raises(ValueError, match="unknown ablation names"):
-        evaluate(checkpoint, TINY, ablation={"nope": other})
+        evaluate(checkpoint, tiny, ablation={"nope": other})
 
 
 def sheet_over_box_edge() -> DrapeInput:
@@ -161,7 +163,8 @@ def test_converged_oracle_row_meets_its_tolerance(checkpoint):
     model, _ = load_model(checkpoint, variant=Variant.FULL)
     config = EvalConfig(instances=1, oracle_budget_s=30.0)
     inst = _Instance("test", 0, "sheet", 0, 0, 81, lambda: InstanceInput(sheet_over_box_edge(), 0.0, None))
-    data = _evaluate_set([inst], {"full": model}, {"full": ("full", 3, True)}, config, log=lambda _: None)
+    data = _evaluate_set([inst], {"full": model}, {"full": ("full", 3, True)}, config, Contact.of(model),
+                         log=lambda _: None)
     (record,) = data["oracle"]["per_instance"]
     assert record["converged"], record["reason"]
     assert record["oracle_residual"] < config.oracle_tol
@@ -171,8 +174,8 @@ def test_converged_oracle_row_meets_its_tolerance(checkpoint):
     assert record["history"][-1]["residual"] < config.oracle_tol
 
 
-def test_tiny_protocol_oracle_rows_meet_the_tolerance_when_converged(results):
+def test_tiny_protocol_oracle_rows_meet_the_tolerance_when_converged(results, tiny):
     for record in results["sets"]["test"]["oracle"]["per_instance"]:
         assert record["converged"] == (record["reason"] == "converged" or record["reason"] == "line_search")
         if record["converged"]:
-            assert record["oracle_residual"] < TINY.oracle_tol
+            assert record["oracle_residual"] < tiny.oracle_tol

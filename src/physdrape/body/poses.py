@@ -130,6 +130,11 @@ _ARM_BONES = {
 }
 
 
+def checks_arms(rig: str) -> bool:
+    """Whether `arm_torso_penetration` knows the arm bones of body rig `rig`."""
+    return rig in _ARM_BONES
+
+
 def _arm_sets(body) -> tuple[Tensor, Tensor]:
     """(query vertex ids on the distal arms, face mask of the non-arm 'torso' surface)."""
     cache = body.__dict__.setdefault("_arm_sets_cache", {})

@@ -41,7 +41,7 @@ from physdrape.geometry.closest_point import closest_point_on_triangle
 from physdrape.geometry.proximity import BodySurface
 from physdrape.geometry.strain_limit import limit_edge_stretch
 from physdrape.geometry.topology import undirected_edges
-from physdrape.physics.collision import DEFAULT_MARGIN
+from physdrape.physics.contact import DEFAULT_MARGIN
 
 __all__ = ["SkinningTransfer"]
 

@@ -35,13 +35,9 @@ mean to the reference's mean over the same instances.
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import platform
-import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -52,40 +48,25 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from physdrape.body.skinning_transfer import LOCAL_STRETCH_BOUND
+from physdrape.checkpoint import load_model
+from physdrape.eval.report import PUBLISHED_ABLATION, PUBLISHED_MAIN, PUBLISHED_NOTE, provenance
 from physdrape.physics.metrics import drape_metrics
-from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
-from physdrape.physics import Cloth, Material
+from physdrape.model import DrapeInput, PhysDrape, Variant
+from physdrape.physics import Material
+from physdrape.physics.contact import penalty_contact_energy
 from physdrape.physics.forces import energy_terms
-from physdrape.physics.oracle import penalty_contact_energy, silenced
+from physdrape.physics.oracle import relax, silenced
+from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, Job, Template
+from physdrape.train.data import BodyPool, DataConfig, load_templates
 
 __all__ = [
     "ABLATION_ROWS",
     "MAIN_ROWS",
-    "PUBLISHED_ABLATION",
-    "PUBLISHED_MAIN",
     "EvalConfig",
     "InstanceInput",
     "RowSpec",
     "evaluate",
-    "load_model",
-    "render_markdown",
-    "write_results",
-]
-
-#: Context only: the paper's numbers (CLOTH3D garments, SMPL bodies) — different data from ours.
-PUBLISHED_NOTE = "published, CLOTH3D/SMPL — different data"
-PUBLISHED_MAIN = [
-    {"method": "DeePSD", "strain": 7.22, "bend": 0.01, "b2g_percent": 7.2},
-    {"method": "DIG", "strain": 6.32, "bend": 0.01, "b2g_percent": 1.8},
-    {"method": "DrapeNet", "strain": 0.43, "bend": 0.01, "b2g_percent": 0.9},
-    {"method": "PhysDrape (T=3)", "strain": 0.20, "bend": 0.004, "b2g_percent": 0.05},
-    {"method": "PhysDrape (T=15)", "strain": 0.15, "bend": 0.004, "b2g_percent": 0.05},
-]
-PUBLISHED_ABLATION = [
-    {"method": "GNN", "strain": 0.20, "bend": 0.004, "b2g_percent": 3.50},
-    {"method": "GNN + solver", "strain": 0.17, "bend": 0.003, "b2g_percent": 2.29},
-    {"method": "GNN + collision", "strain": 0.21, "bend": 0.004, "b2g_percent": 0.06},
-    {"method": "GNN + solver + collision (full)", "strain": 0.15, "bend": 0.004, "b2g_percent": 0.05},
 ]
 
 METRIC_KEYS = ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative", "energy_total")
@@ -133,9 +114,9 @@ class EvalConfig:
     split_dir / max_garments: the garment split ("" = default cache) and its first N test
     garments (0 = all); makehuman_dir: CC0 MakeHuman garments (.mhclo), "" = skip;
     makehuman_instances: bodies per MakeHuman garment; makehuman_max_verts: skip MakeHuman
-    garments with more vertices (0 = no cap; the largest CC0 suit, 9.7k vertices, peaks at
-    1.9 GiB with the oracle); dtype: of garments, bodies and physics ("float32"/"float64"; the
-    network keeps its own); threads: torch threads (1 was fastest on the shared CPU)."""
+    garments with more vertices (0 = no cap); dtype: of the garments, bodies and physics handed
+    to the model ("float32"/"float64"; default: the API's, so the evaluation measures what
+    `Draper` runs; the network keeps its own); threads: torch threads (0: torch's default)."""
 
     instances: int = 10
     seed: int = 0
@@ -149,7 +130,7 @@ class EvalConfig:
     makehuman_dir: str = ""
     makehuman_instances: int = 1
     makehuman_max_verts: int = 0
-    dtype: str = "float64"
+    dtype: str = str(DEFAULT_DTYPE).removeprefix("torch.")
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -168,38 +149,6 @@ class EvalConfig:
 # ------------------------------------------------------------------------------------------
 # Models and instances
 # ------------------------------------------------------------------------------------------
-
-
-def load_model(checkpoint: str | os.PathLike, *, variant: Variant | None = None) -> tuple[PhysDrape, dict]:
-    """The model of a checkpoint (directory, or a run directory: its latest), switched to `variant`.
-
-    Returns (model in eval mode, info {"path", "step", "variant", "eval_steps", "dtype"}).
-    """
-    from physdrape.config_io import from_mapping
-    from physdrape.train.checkpoint import (
-        CheckpointError,
-        latest_checkpoint,
-        read_checkpoint,
-    )
-
-    path = Path(checkpoint)
-    if (path / "latest").is_file():
-        path = latest_checkpoint(path)
-    tensors, config = read_checkpoint(path)
-    train = config.get("train", {})
-    if "model" not in train:
-        raise CheckpointError(f"{path}/config.json has no train.model section: not a PhysDrape training checkpoint")
-    model_cfg = from_mapping(ModelConfig, train["model"], where=f"{path}/config.json:train.model")
-    if variant is not None:
-        model_cfg = replace(model_cfg, variant=variant)
-    dtype = getattr(torch, train.get("dtype", "float32"))
-    model = PhysDrape(model_cfg).to(dtype)
-    model.load_state_dict(tensors)
-    model.eval()
-    step = path.name.split("-")[-1]
-    info = {"path": str(path.resolve()), "step": int(step) if step.isdigit() else None, "variant": model_cfg.variant.value,
-            "eval_steps": model_cfg.eval_steps, "dtype": str(dtype).removeprefix("torch.")}
-    return model, info
 
 
 def garment_of(i: int, num_instances: int, num_garments: int) -> int:
@@ -237,50 +186,48 @@ class InstanceInput(NamedTuple):
     skinned: torch.Tensor | None
 
 
-def _instance_batch(source, garment: int, body: int) -> InstanceInput:
-    """Garment `garment` of the source on pool body `body`, default material (see `InstanceInput`)."""
-    from physdrape.body.skinning_transfer import LOCAL_STRETCH_BOUND
-    from physdrape.geometry.garment import GarmentBatch
-    from physdrape.geometry.proximity import BodySurface
-
-    transfer, state = source.transfer(garment), source.pool.state(body)
+def _instance_batch(pipeline: DrapePipeline, pool, template: Template, body: int) -> InstanceInput:
+    """`template` on pool body `body`, default material, built by the drape pipeline exactly as
+    `Draper.drape` builds it (see `InstanceInput`)."""
+    state = pool.state(body)
+    t0 = time.perf_counter()
+    x_init = pipeline.x_init(template, state)
+    init_s = time.perf_counter() - t0
     with torch.no_grad():
-        t0 = time.perf_counter()
-        x_init = transfer.apply(state)[0].to(source.dtype)
-        init_s = time.perf_counter() - t0
-        skinned = replace(transfer, max_stretch=LOCAL_STRETCH_BOUND).apply(state)[0].to(source.dtype)
-    batch = GarmentBatch.pack([source.templates[garment]])
-    bodies = BodySurface(source.pool.verts[body:body + 1], source.pool.faces)
-    return InstanceInput(DrapeInput(batch, Cloth.build(batch, Material()), x_init, bodies, batch.vert_garment),
-                         init_s, skinned)
+        skinned = replace(pipeline.transfer(template), max_stretch=LOCAL_STRETCH_BOUND).apply(state)[0]
+    drape = pipeline.build([Job(template, 0, Material(), x_init)], state)
+    return InstanceInput(drape, init_s, skinned.to(pipeline.dtype))
 
 
-def _test_instances(config: EvalConfig, body=None) -> tuple[list[_Instance], object]:
-    from physdrape.train.data import DataConfig, DrapeSource
-
-    data = DataConfig(split_dir=config.split_dir, subset="test", max_garments=config.max_garments,
-                      body_pool_size=config.instances, body_seed=config.seed, materials="default", dtype=config.dtype)
-    source = DrapeSource(data, body=body)
+def _instances(set_name: str, templates: list[Template], pool, config: EvalConfig, body) -> list[_Instance]:
+    """Instance i of a set: garment `garment_of(i)` on pool body i (the pool's seed fixes the bodies)."""
+    pipeline = DrapePipeline(body, dtype=getattr(torch, config.dtype))
     out = []
-    for i in range(config.instances):
-        g = garment_of(i, config.instances, len(source.templates))
-        out.append(_Instance("test", i, source.templates[g].name, g, i, source.templates[g].num_verts,
-                             partial(_instance_batch, source, g, i)))
-    return out, source
+    for i in range(len(pool)):
+        g = garment_of(i, len(pool), len(templates))
+        out.append(_Instance(set_name, i, templates[g].name, g, i, templates[g].num_verts,
+                             partial(_instance_batch, pipeline, pool, templates[g], i)))
+    return out
+
+
+def _test_instances(config: EvalConfig, body) -> list[_Instance]:
+    data = DataConfig(split_dir=config.split_dir, split_seed=0, subset="test", max_garments=config.max_garments)
+    templates = load_templates(data)
+    if not templates:
+        raise ValueError(f"no test garments in the split ({config.split_dir or 'the default cache'})")
+    pool = BodyPool(body, config.instances, seed=config.seed, dtype=POSE_DTYPE)
+    return _instances("test", templates, pool, config, body)
 
 
 def _makehuman_instances(config: EvalConfig, body) -> tuple[list[_Instance], list[str]]:
     """Instances of the CC0 MakeHuman garments (skipped with a note if anything is missing)."""
     from physdrape.garments.mhclo import load_mhclo
-    from physdrape.geometry.garment import Garment as GarmentMesh
-    from physdrape.train.data import DataConfig, DrapeSource
 
     notes = []
     root = Path(config.makehuman_dir).expanduser()
     files = sorted(root.glob("*/*.mhclo")) + sorted(root.glob("*.mhclo"))
     if not files:
         return [], [f"MakeHuman: no .mhclo under {root}; skipped"]
-    dtype = getattr(torch, config.dtype)
     templates = []
     for path in files:
         try:
@@ -289,20 +236,13 @@ def _makehuman_instances(config: EvalConfig, body) -> tuple[list[_Instance], lis
                 notes.append(f"MakeHuman: {path.name} skipped ({len(g.verts)} vertices > makehuman_max_verts "
                              f"{config.makehuman_max_verts})")
                 continue
-            templates.append(GarmentMesh.from_mesh(g.verts, g.faces, name=path.stem, dtype=dtype))
+            templates.append(Template.from_mesh(g.verts, g.faces, name=path.stem))
         except Exception as exc:  # noqa: BLE001 (an optional set: report and go on)
             notes.append(f"MakeHuman: {path.name} skipped ({type(exc).__name__}: {exc})")
     if not templates:
         return [], notes
-    count = len(templates) * config.makehuman_instances
-    data = DataConfig(subset="test", body_pool_size=count, body_seed=config.seed + 1, materials="default", dtype=config.dtype)
-    source = DrapeSource(data, body=body, templates=templates)
-    out = []
-    for i in range(count):
-        g = i % len(templates)
-        out.append(_Instance("makehuman", i, templates[g].name, g, i, templates[g].num_verts,
-                             partial(_instance_batch, source, g, i)))
-    return out, notes
+    pool = BodyPool(body, len(templates) * config.makehuman_instances, seed=config.seed + 1, dtype=POSE_DTYPE)
+    return _instances("makehuman", templates, pool, config, body), notes
 
 
 # ------------------------------------------------------------------------------------------
@@ -310,21 +250,33 @@ def _makehuman_instances(config: EvalConfig, body) -> tuple[list[_Instance], lis
 # ------------------------------------------------------------------------------------------
 
 
-def _metrics(x: torch.Tensor, batch: DrapeInput) -> dict[str, float]:
+class Contact(NamedTuple):
+    """The body contact of the problem every row is measured on: the model's penalty stiffness
+    k_c [J/m³] and margin ε [m] (`ModelConfig.contact_stiffness`, `ModelConfig.margin`)."""
+
+    stiffness: float
+    margin: float
+
+    @staticmethod
+    def of(model: PhysDrape) -> Contact:
+        return Contact(model.config.contact_stiffness, model.config.margin)
+
+
+def _metrics(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> dict[str, float]:
     m = drape_metrics(x, batch.garments, batch.bodies, batch.body_index, cloth=batch.cloth)
     out = {name: float(getattr(m, name)[0]) for name in m.__dataclass_fields__}
-    out["energy_total"] = float(total_energy(x, batch)[0])
+    out["energy_total"] = float(total_energy(x, batch, contact)[0])
     return out
 
 
 @torch.no_grad()
-def total_energy(x: torch.Tensor, batch: DrapeInput) -> torch.Tensor:
+def total_energy(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> torch.Tensor:
     """E_strain + E_bend + E_grav + E_contact per garment [J] (G,): what the oracle minimises
-    (penalty contact at vertices and face centroids with its default stiffness and margin; the
-    batch's materials)."""
+    (penalty contact at vertices and face centroids; the batch's materials)."""
     terms = energy_terms(x, batch.cloth)
-    contact = penalty_contact_energy(x, batch.cloth, batch.bodies, batch.body_index)
-    return terms["strain"] + terms["bend"] + terms["gravity"] + contact
+    e_contact = penalty_contact_energy(x, batch.cloth, batch.bodies, batch.body_index, stiffness=contact.stiffness,
+                                       margin=contact.margin)
+    return terms["strain"] + terms["bend"] + terms["gravity"] + e_contact
 
 
 @torch.no_grad()
@@ -335,21 +287,19 @@ def run_model(model: PhysDrape, batch: DrapeInput, *, steps: int | None, network
     return out.x, time.perf_counter() - t0
 
 
-def run_oracle(batch: DrapeInput, config: EvalConfig, start: torch.Tensor | None = None):
+def run_oracle(batch: DrapeInput, config: EvalConfig, contact: Contact, start: torch.Tensor | None = None):
     """`relax` from `start` (default X_init) on one instance (penalty contact), with the
     configured tol and budget."""
-    from physdrape.physics.oracle import relax
-
     garment_of_vert = batch.garments.vert_garment
     body_of_garment = torch.zeros(batch.garments.num_garments, dtype=torch.int64).scatter_(0, garment_of_vert, batch.body_index)
     with silenced(1):
         return relax(batch.x_init if start is None else start, batch.cloth, batch.bodies, body_of_garment,
-                     contact="penalty", tol=config.oracle_tol,
-                     max_iters=config.oracle_max_iters, time_budget_s=config.oracle_budget_s)
+                     contact="penalty", tol=config.oracle_tol, contact_stiffness=contact.stiffness,
+                     margin=contact.margin, max_iters=config.oracle_max_iters, time_budget_s=config.oracle_budget_s)
 
 
-def _oracle_record(result, batch: DrapeInput) -> dict:
-    rec = _metrics(result.x.to(batch.x_init.dtype), batch)
+def _oracle_record(result, batch: DrapeInput, contact: Contact) -> dict:
+    rec = _metrics(result.x.to(batch.x_init.dtype), batch, contact)
     rec.update(wall_s=float(result.wall_time), converged=bool(result.converged), reason=result.reason,
                oracle_residual=float(result.residual.max()), iterations=len(result.history) - 1,
                oracle_energy_total=float(result.energy_terms["total"].sum()))
@@ -400,7 +350,8 @@ def _reference(oracle: list[dict], refined: list[dict]) -> list[dict]:
 REFINED_ROW = "physdrape_t15"
 
 
-def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: EvalConfig, log) -> dict:
+def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: EvalConfig, contact: Contact,
+                  log) -> dict:
     """Per-instance records and summaries of every row (and the oracle) on one instance set."""
     per_row: dict[str, list[dict]] = {key: [] for key in rows}
     oracle: list[dict] = []
@@ -410,13 +361,13 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
     refine = config.oracle and config.oracle_refine and REFINED_ROW in rows
     for inst in instances:
         batch, init_s, skinned = inst.batch()
-        start.append({**_metrics(batch.x_init, batch), "wall_s": init_s})
+        start.append({**_metrics(batch.x_init, batch, contact), "wall_s": init_s})
         if skinned is not None:
-            plain.append({**_metrics(skinned, batch), "wall_s": 0.0})
+            plain.append({**_metrics(skinned, batch, contact), "wall_s": 0.0})
         to_refine = None
         for key, (model_key, steps, network) in rows.items():
             x, wall = run_model(models[model_key], batch, steps=steps, network=network)
-            rec = _metrics(x, batch)
+            rec = _metrics(x, batch, contact)
             rec["wall_s"] = init_s + wall  # a drape costs its kinematic init plus the model
             rec["model_wall_s"] = wall
             per_row[key].append(rec)
@@ -424,10 +375,10 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
                 to_refine = x
         line = f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment} ({inst.num_verts} verts)"
         if config.oracle:
-            oracle.append(_oracle_record(run_oracle(batch, config, skinned), batch))
+            oracle.append(_oracle_record(run_oracle(batch, config, contact, skinned), batch, contact))
             line += f": oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s"
         if refine:
-            rec = _oracle_record(run_oracle(batch, config, to_refine), batch)
+            rec = _oracle_record(run_oracle(batch, config, contact, to_refine), batch, contact)
             rec["oracle_wall_s"] = rec["wall_s"]
             rec["wall_s"] += per_row[REFINED_ROW][-1]["wall_s"]  # the drape it polishes is part of its cost
             refined.append(rec)
@@ -462,22 +413,6 @@ def _peak_rss_gib() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-
-
-def _versions() -> dict:
-    import physdrape
-
-    def git(*args: str) -> str | None:
-        try:
-            return subprocess.run(["git", *args], cwd=Path(__file__).parent, capture_output=True, check=False,
-                                  text=True, timeout=5).stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            return None
-
-    commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain")
-    return {"physdrape": physdrape.__version__, "torch": torch.__version__, "numpy": np.__version__,
-            "python": platform.python_version(), "git_commit": commit or None,
-            "git_dirty": bool(status) if status is not None else None, "platform": platform.platform()}
 
 
 def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *,
@@ -520,8 +455,9 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
         from physdrape.body.anny_body import get_anny_body
 
         body = get_anny_body()
-    instances, _ = _test_instances(config, body=body)
-    sets = {"test": _evaluate_set(instances, models, {**main_rows, **abl_rows}, config, log)}
+    instances = _test_instances(config, body)
+    contact = Contact.of(models["physdrape_t15"])
+    sets = {"test": _evaluate_set(instances, models, {**main_rows, **abl_rows}, config, contact, log)}
     notes = []
     if config.makehuman_dir:
         try:
@@ -529,7 +465,7 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
         except Exception as exc:  # noqa: BLE001 (an optional set never sinks the main evaluation)
             mh, notes = [], [f"MakeHuman set skipped ({type(exc).__name__}: {exc})"]
         if mh:
-            sets["makehuman"] = _evaluate_set(mh, models, {**main_rows, **abl_rows}, config, log)
+            sets["makehuman"] = _evaluate_set(mh, models, {**main_rows, **abl_rows}, config, contact, log)
         for note in notes:
             log(f"[eval] {note}")
 
@@ -537,7 +473,7 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
         "format": "physdrape-eval-1",
         "config": asdict(config),
         "command": command if command is not None else " ".join(sys.argv),
-        "versions": _versions(),
+        "versions": provenance(),
         "checkpoints": checkpoints,
         "row_definitions": {s.key: {"label": s.label, "variant": s.variant.value,
                                     "steps": main_rows[s.key][1] if s.variant.uses_solver else None,
@@ -558,144 +494,3 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
     }
 
 
-# ------------------------------------------------------------------------------------------
-# Output
-# ------------------------------------------------------------------------------------------
-
-
-def _fmt(value, digits: int = 3) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "–"
-    if isinstance(value, float):
-        if value != 0 and (abs(value) < 10 ** -digits or abs(value) >= 1e4):
-            return f"{value:.{digits - 1}e}"
-        return f"{value:.{digits}g}" if abs(value) < 1 else f"{value:.{digits}f}".rstrip("0").rstrip(".")
-    return str(value)
-
-
-def _table(rows: list[tuple[str, dict]], *, timing: bool, oracle: bool) -> list[str]:
-    head = ["Method", "E_strain [J]", "E_bend [J]", "B2G %", "close %", "residual [N]", "E_total [J]"]
-    if oracle:
-        head += ["E_strain / reference", "E_bend / reference"]
-    if timing:
-        head += ["wall / garment [s] (mean)"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for label, s in rows:
-        cells = [label] + [_fmt(s.get(k)) for k in ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "energy_total")]
-        if oracle:
-            cells += [_fmt(s.get("strain_ratio")), _fmt(s.get("bend_ratio"))]
-        if timing:
-            cells += [_fmt(s.get("wall_s"))]
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
-
-
-def _published(rows: list[dict]) -> list[str]:
-    lines = [f"| Method ({PUBLISHED_NOTE}) | E_strain | E_bend | B2G % |", "|---|---|---|---|"]
-    lines += [f"| {r['method']} | {r['strain']} | {r['bend']} | {r['b2g_percent']} |" for r in rows]
-    return lines
-
-
-def render_markdown(results: dict, *, timing: bool = True) -> str:
-    """Both tables (per instance set) as Markdown; timing=False leaves the wall-time columns out
-    (everything else is deterministic for a seed)."""
-    cfg = results["config"]
-    has_oracle = bool(cfg["oracle"])
-    out = ["# PhysDrape evaluation", ""]
-    ck = results["checkpoints"]["physdrape_t15"]
-    out.append(f"Checkpoint: `{ck['path']}` (step {ck['step']}). Seed {cfg['seed']}, {cfg['instances']} test instances, "
-               f"default material, dtype {cfg['dtype']}.")
-    if timing:
-        out.append(f"Command: `{results['command']}`")
-    out.append("")
-    out.append("Rows (all from the one checkpoint, switched at inference):")
-    for d in results["row_definitions"].values():
-        out.append(f"- **{d['label']}**: {d['definition']}" + (f" (T = {d['steps']})" if d["steps"] else ""))
-    out.append("- **X_init**: the kinematic initialisation every row starts from (skinning transfer, then contact-aware "
-               "strain limiting of the edges to 1.02 x rest), for context. Every model row's wall time includes it.")
-    out.append("- **Skinned**: the skinning transfer with only the local limit of its artefacts (edges ≤ 1.5 x rest): "
-               "where the oracle starts (a classical solver gets the plain kinematic start, not PhysDrape's pull-back).")
-    if has_oracle:
-        out.append(f"- **Oracle**: {results['oracle_definition']}.")
-    if cfg.get("oracle_refine") and has_oracle:
-        out.append("- **Oracle refining PhysDrape (T=15)**: the oracle started from the model's drape (the refinement "
-                   "mode); its wall time includes the model's. **Reference**: per instance the lower-E_total of the "
-                   "two oracle results, the best equilibrium found from either start.")
-    out.append("")
-    out.append("Energies are means over instances under the default material; E_total = E_strain + E_bend + E_grav + "
-               "contact penalty (what the oracle minimises). Ratios: row mean / reference mean on "
-               "the same instances. residual: mean |F_int| over vertices > 3 mm from the body. The oracle's wall time "
-               "is a lower bound where it stopped on its budget instead of converging.")
-    for set_name, data in results["sets"].items():
-        oracle = data["oracle"]["summary"] if data["oracle"] else None
-        title = "test garments × seeded Anny shapes/poses" if set_name == "test" else "CC0 MakeHuman garments"
-        out += ["", f"## Table 1 — {title} ({len(data['instances'])} instances)", ""]
-        rows = [(results["row_definitions"][k]["label"], data["rows"][k]["summary"]) for k in results["row_definitions"]]
-        if "x_init" in data:
-            rows.insert(0, ("X_init (kinematic start, no model; context)", data["x_init"]["summary"]))
-        if "skinned" in data:
-            rows.insert(0, ("Skinned (the oracle's start; context)", data["skinned"]["summary"]))
-        n = len(data["instances"])
-        if oracle:
-            rows.append((f"Oracle from the skinned start ({oracle['converged']}/{n} converged)", oracle))
-        if data.get("oracle_refined"):
-            refined = data["oracle_refined"]["summary"]
-            rows.append((f"Oracle refining PhysDrape (T=15) ({refined['converged']}/{n} converged)", refined))
-            reference = data["reference"]["summary"]
-            rows.append((f"Reference (lower E_total per instance; {reference['from_refinement']}/{n} from the "
-                         "refinement)", reference))
-        out += _table(rows, timing=timing, oracle=has_oracle)
-        sources = {d["source"] for d in results["ablation_definitions"].values()}
-        if sources == {"switched"}:
-            how = "switched at inference on the full model, not retrained"
-        elif sources == {"retrained"}:
-            how = "separately trained checkpoints, one per variant"
-        else:
-            how = "mixed: rows marked (switched) are switched at inference on the full model, not retrained"
-        out += ["", f"## Table 2 — module ablation ({how})", ""]
-        rows = []
-        for k, d in results["ablation_definitions"].items():
-            mark = " (switched)" if d["source"] == "switched" and sources != {"switched"} else ""
-            steps = f", T = {d['steps']}" if d["steps"] else ""
-            rows.append((f"{d['label']}{mark}{steps}", data["rows"][f"ablation:{k}"]["summary"]))
-        out += _table(rows, timing=timing, oracle=has_oracle)
-    out += ["", "## Context: published numbers (not comparable)", "",
-            f"Table 1 of the paper — {PUBLISHED_NOTE}:", ""] + _published(PUBLISHED_MAIN)
-    out += ["", f"Table 2 of the paper — {PUBLISHED_NOTE}:", ""] + _published(PUBLISHED_ABLATION)
-    if results.get("notes"):
-        out += ["", "Notes:"] + [f"- {n}" for n in results["notes"]]
-    return "\n".join(out) + "\n"
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _finite_or_none(value):
-    """The results with NaN/inf floats as null (strict JSON)."""
-    if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite_or_none(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def write_results(results: dict, out_dir: str | os.PathLike, *, stem: str = "eval") -> tuple[Path, Path]:
-    """Write `<stem>.json` (every number) and `<stem>.md` (the tables) atomically into out_dir."""
-    out_dir = Path(out_dir)
-    json_path, md_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-    _atomic_write(json_path, json.dumps(_finite_or_none(results), indent=1, allow_nan=False) + "\n")
-    _atomic_write(md_path, render_markdown(results))
-    return json_path, md_path

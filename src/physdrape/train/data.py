@@ -3,7 +3,8 @@
 Each sample is fully determined by its seed: which training garment, which posed body of the
 body pool, which material. The body pool (posed, shaped Anny bodies with their skinning
 transforms) is computed once per source, so the body model is not on the training hot path; the
-garment skinning transfers are fitted once per garment, on first use.
+samples are built by the drape pipeline (`physdrape.pipeline`), which fits each garment's
+skinning transfer once, on first use.
 """
 
 from __future__ import annotations
@@ -16,11 +17,9 @@ import numpy as np
 import torch
 
 from physdrape.body.model import BodyState
-from physdrape.body.skinning_transfer import SkinningTransfer
-from physdrape.geometry.garment import Garment, GarmentBatch
-from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
-from physdrape.physics import Cloth, Material
+from physdrape.physics import Material
+from physdrape.pipeline import DrapePipeline, Job, Template
 
 #: HOOD's training ranges (DESIGN.md Sec. 4b).
 MU_RANGE = (1.59e4, 6.36e4)  # Pa, log-uniform
@@ -100,32 +99,33 @@ class BodyPool:
     def __len__(self) -> int:
         return self.verts.shape[0]
 
-    def state(self, index: int) -> BodyState:
-        """Body `index` as a BodyState of batch 1 (normals left empty: not needed for LBS)."""
-        sl = slice(index, index + 1)
-        return BodyState(verts=self.verts[sl], faces=self.faces, normals=torch.empty(0),
-                         rest_verts=self.rest_verts[sl], vertex_transforms=self.vertex_transforms[sl])
+    def state(self, indices: int | list[int]) -> BodyState:
+        """Bodies `indices` (one index: a batch of one) as a BodyState (normals left empty: not
+        needed for LBS)."""
+        rows = [indices] if isinstance(indices, int) else list(indices)
+        return BodyState(verts=self.verts[rows], faces=self.faces, normals=torch.empty(0),
+                         rest_verts=self.rest_verts[rows], vertex_transforms=self.vertex_transforms[rows])
 
 
-def load_templates(config: DataConfig) -> list[Garment]:
-    """The split's garments as validated `Garment`s (generating the split on first use)."""
+def load_templates(config: DataConfig) -> list[Template]:
+    """The split's garments as templates (generating the split on first use)."""
     from physdrape.garments.split import load_split, make_split
 
     split_dir = Path(config.split_dir).expanduser() if config.split_dir else default_split_dir(config.split_seed)
     if not (split_dir / "manifest.json").is_file():
         print(f"[physdrape] generating the garment split in {split_dir} (first use only)")
         make_split(split_dir, seed=config.split_seed)
-    dtype = getattr(torch, config.dtype)
     raw = load_split(split_dir, config.subset)
     if config.max_garments:
         raw = raw[: config.max_garments]
-    return [Garment.from_mesh(g.verts, g.faces, name=g.name, dtype=dtype) for g in raw]
+    return [Template.from_mesh(g.verts, g.faces, name=g.name) for g in raw]
 
 
 class DrapeSource:
     """`SampleSource` of the real pipeline (see the module docstring)."""
 
-    def __init__(self, config: DataConfig = DataConfig(), *, body=None, templates: list[Garment] | None = None) -> None:
+    def __init__(self, config: DataConfig = DataConfig(), *, body=None,
+                 templates: list[Template] | None = None) -> None:
         from physdrape.body.anny_body import get_anny_body
 
         self.config = config
@@ -135,28 +135,15 @@ class DrapeSource:
         if not self.templates:
             raise ValueError("no garment templates to train on: check DataConfig.split_dir / subset / max_garments")
         self.pool = BodyPool(self.body, config.body_pool_size, seed=config.body_seed, dtype=self.dtype)
-        self._transfers: dict[int, SkinningTransfer] = {}
-
-    def transfer(self, index: int) -> SkinningTransfer:
-        """The skinning transfer of template `index` (fitted on first use)."""
-        if index not in self._transfers:
-            g = self.templates[index]
-            self._transfers[index] = SkinningTransfer.fit(self.pool.canonical.to(torch.float64), self.pool.faces,
-                                                          g.rest.to(torch.float64), g.faces)
-        return self._transfers[index]
+        self.pipeline = DrapePipeline(self.body, dtype=self.dtype)
 
     def make_batch(self, seeds: list[int]) -> DrapeInput:
-        garments, materials, x_init, body_ids = [], [], [], []
-        for seed in seeds:
+        """The samples of `seeds`: each seed draws a training garment, a pool body and a material."""
+        jobs, body_ids = [], []
+        for k, seed in enumerate(seeds):
             rng = np.random.default_rng(seed)
             g = int(rng.integers(len(self.templates)))
-            b = int(rng.integers(len(self.pool)))
+            body_ids.append(int(rng.integers(len(self.pool))))
             material = sample_material(rng) if self.config.materials == "sampled" else Material()
-            with torch.no_grad():
-                x_init.append(self.transfer(g).apply(self.pool.state(b))[0].to(self.dtype))
-            garments.append(self.templates[g])
-            materials.append(material)
-            body_ids.append(b)
-        batch = GarmentBatch.pack(garments)
-        bodies = BodySurface(self.pool.verts[body_ids], self.pool.faces)
-        return DrapeInput(batch, Cloth.build(batch, materials), torch.cat(x_init), bodies, batch.vert_garment)
+            jobs.append(Job(self.templates[g], k, material))
+        return self.pipeline.build(jobs, self.pool.state(body_ids))

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 from physdrape.atomic import write_text
-from physdrape.train.checkpoint import export_model, latest_checkpoint, read_checkpoint
+from physdrape.checkpoint import export_model, latest_checkpoint, read_checkpoint
 from physdrape.train.curves import plot_metrics, read_metrics
 
 

@@ -1,16 +1,12 @@
-"""`physdrape eval`: the evaluation protocol of `physdrape.eval.evaluate` from the command line.
-
-Wire into `physdrape.cli.build_parser` with::
-
-    from physdrape.eval.cli import add_parser as add_eval_parser
-    add_eval_parser(sub)
-"""
+"""`physdrape eval`: the evaluation protocol of `physdrape.eval.evaluate` from the command line."""
 
 from __future__ import annotations
 
 import argparse
 import shlex
 import sys
+
+from physdrape.cli.common import CLIError
 
 
 def _ablation_pair(text: str) -> tuple[str, str]:
@@ -24,14 +20,8 @@ def _ablation_pair(text: str) -> tuple[str, str]:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Run the protocol and write <out>/eval.json and <out>/eval.md."""
-    from physdrape.eval.evaluate import (
-        EvalConfig,
-        evaluate,
-        render_markdown,
-        write_results,
-    )
-
-    from physdrape.cli import CLIError
+    from physdrape.eval.evaluate import EvalConfig, evaluate
+    from physdrape.eval.report import render_markdown, write_results
 
     ablation = dict(args.ablation or [])
     try:
@@ -39,7 +29,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             instances=args.instances, seed=args.seed, oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget,
             oracle_tol=args.oracle_tol, oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine,
             split_dir=args.split_dir or "", max_garments=args.max_garments, makehuman_dir=args.makehuman or "",
-            makehuman_max_verts=args.makehuman_max_verts, dtype=args.dtype, threads=args.threads,
+            makehuman_max_verts=args.makehuman_max_verts, threads=args.threads,
+            **({"dtype": args.dtype} if args.dtype else {}),
         )
     except ValueError as exc:  # a bad flag value: exit 2 with the message, no traceback
         raise CLIError(f"{exc} (see physdrape eval --help)") from None
@@ -72,19 +63,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="a separately trained checkpoint for Table 2 (NAME: gnn, gnn+solver, gnn+collision, full)")
     p.add_argument("--split-dir", help="garment split directory (default: the cached seed-0 split)")
     p.add_argument("--max-garments", type=int, default=0, help="use the first N test garments (0: all)")
-    p.add_argument("--dtype", choices=("float32", "float64"), default="float64", help="physics dtype")
+    p.add_argument("--dtype", choices=("float32", "float64"), default=None,
+                   help="dtype of the garments, bodies and physics (default: the API's, float32)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (0: torch's default)")
     p.set_defaults(func=cmd_eval)
     return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Standalone entry (`python -m physdrape.eval.cli eval ...`) until `physdrape eval` is wired."""
-    parser = argparse.ArgumentParser(prog="physdrape")
-    add_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from physdrape.config_io import to_mapping
-from physdrape.eval.cli import add_parser
+from physdrape.cli.eval import add_parser
 from physdrape.model import ModelConfig, PhysDrape
-from physdrape.train.checkpoint import save_checkpoint
+from physdrape.checkpoint import save_checkpoint
 from physdrape.train.trainer import TrainConfig
 
 
@@ -56,13 +56,13 @@ def test_bad_flag_values_exit_2_with_the_message(tmp_path, capsys, flags, messag
     assert not out.exists()  # nothing written
 
 
-def test_tiny_protocol_runs_and_writes_both_files(tmp_path, monkeypatch, anny_body):
+def test_tiny_protocol_runs_and_writes_both_files(tmp_path, monkeypatch, anny_body, tiny_split):
     import physdrape.body.anny_body as anny
 
     monkeypatch.setattr(anny, "get_anny_body", lambda *a, **k: anny_body)
     ckpt = tiny_checkpoint(tmp_path / "run")
     args = parser().parse_args(["eval", "--checkpoint", str(tmp_path / "run"), "--out", str(tmp_path / "out"),
-                                "--instances", "2", "--max-garments", "2", "--no-oracle"])
+                                "--instances", "2", "--max-garments", "2", "--no-oracle", "--split-dir", tiny_split])
     assert args.func(args) == 0
     results = json.loads((tmp_path / "out" / "eval.json").read_text())
     assert results["checkpoints"]["physdrape_t15"]["path"] == str(ckpt.resolve())

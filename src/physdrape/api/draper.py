@@ -1,0 +1,373 @@
+"""The `Draper`: loads a PhysDrape model once and drapes batches of garments on posed bodies.
+
+A call to `Draper.drape` resolves its specs (`physdrape.api.specs`), broadcasts garments × poses ×
+materials into jobs, drapes the independent jobs in batches through the drape pipeline
+(`physdrape.pipeline`) and the model, then the frames of warm-started motions one by one
+(`physdrape.api.sequences`), and packs one `DrapeResult` per job.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from physdrape import checkpoint as ckpt
+from physdrape.api import sequences, specs
+from physdrape.api.specs import BodyPose
+from physdrape.api.types import DrapeError, DrapeResult, Motion
+from physdrape.body.model import BodyState
+from physdrape.body.poses import arm_torso_penetration, checks_arms
+from physdrape.geometry.proximity import BodySurface
+from physdrape.physics import Cloth, energy_terms, internal_forces, relax
+from physdrape.physics.metrics import drape_metrics
+from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, Job, Template, select
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One drape of a call: a template on a pose (`pose_id` numbers the call's distinct poses) in
+    a material."""
+
+    template: Template
+    pose: BodyPose
+    pose_id: int
+    material: Any
+
+
+@dataclass(frozen=True)
+class _Warm:
+    """The previous frame of a warm-started job: its drape X*(t−1) (V, 3) and blended transforms T(t−1)."""
+
+    x: Tensor
+    transforms: Tensor
+
+
+class Draper:
+    """Loads a PhysDrape model once and drapes batches of garments.
+
+    Args:
+        checkpoint: a checkpoint directory (model.safetensors + config.json) or a run directory
+            (its ``latest``); None = the bundled model (`physdrape.checkpoint.bundled_model`).
+        steps: solver steps T at inference (paper: 15).
+        body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
+            `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
+        smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
+            a restricted unpickler) or of a folder holding ``SMPL_{GENDER}.npz|pkl``: shorthand for
+            ``body=SMPLBody(smpl_model, gender=smpl_gender)``. The model files are not shipped
+            (https://smpl.is.tue.mpg.de). With an SMPL body: shape = β (`betas`), pose = θ
+            (axis-angles per SMPL joint) or AMASS frames (`Motion` of an .npz), and garments must be
+            .obj/.ply files authored on SMPL's canonical body (β = 0, zero pose).
+        smpl_gender: picks the file when `smpl_model` is a folder.
+        dtype: dtype of garments, bodies and the solver (the network keeps its own).
+        check_pose: refuse (DrapeError) a pose whose arms pass through the torso
+            (`body.poses.arm_torso_penetration`), instead of draping it silently.
+        arm_contact_tolerance: arm vertices (of those the check samples, every 4th) allowed
+            inside the body before a pose is refused: a hand resting on a hip is contact, an arm
+            swung into the chest is not.
+    """
+
+    def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
+                 dtype: torch.dtype = DEFAULT_DTYPE, check_pose: bool = True, arm_contact_tolerance: int = 20,
+                 smpl_model: str | Path | None = None, smpl_gender: str = "neutral") -> None:
+        if not isinstance(steps, int) or steps < 0:
+            raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
+        if dtype not in (torch.float32, torch.float64):
+            raise DrapeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        path = Path(checkpoint).expanduser() if checkpoint is not None else ckpt.bundled_model()
+        if not path.exists():
+            hint = "the bundled model is not installed" if checkpoint is None else f"{path} does not exist"
+            raise DrapeError(
+                f"no PhysDrape model: {hint}. Train one with `physdrape train --config configs/cpu_default.yaml "
+                f"--run-dir runs/cpu_default` and pass `--checkpoint runs/cpu_default` (API: "
+                f"Draper(checkpoint=...)), or copy a checkpoint directory (model.safetensors + config.json) to "
+                f"{ckpt.bundled_model()}")
+        try:
+            self.model, _ = ckpt.load_model(path)
+        except ckpt.CheckpointError as exc:
+            raise DrapeError(f"cannot load the PhysDrape model: {exc}") from None
+        self.model_config = self.model.config
+        self.checkpoint = path
+        self.steps = steps
+        self.dtype = dtype
+        self.check_pose = check_pose
+        self.arm_contact_tolerance = arm_contact_tolerance
+        self._bodies: dict[str, Any] = {}
+        if body is not None and smpl_model is not None:
+            raise DrapeError("give either body=... or smpl_model=..., not both")
+        if smpl_model is not None:
+            body = specs.load_smpl_body(smpl_model, gender=smpl_gender)
+        if body is not None:
+            if not hasattr(body, "rig"):
+                raise DrapeError(f"body must be an AnnyBody or an SMPLBody, got {type(body).__name__}")
+            self._bodies[body.rig] = body
+        #: the SMPL body when this Draper drapes on SMPL (then Anny is never loaded), else None
+        self.smpl = self._bodies.get("smpl")
+        self._pipelines: dict[str, DrapePipeline] = {}
+        self._templates: dict[str, Template] = {}
+
+    # ------------------------------------------------------------------ inputs
+    def body(self, rig: str = "anny"):
+        """The Anny body of `rig` ("anny" for presets/random poses, "cmu_mb" for BVH), cached;
+        "smpl": the SMPL body given to the Draper."""
+        if rig == "smpl" and rig not in self._bodies:
+            raise DrapeError("this Draper has no SMPL body: create it with Draper(smpl_model=PATH) "
+                             "(CLI: --smpl-model FILE)")
+        if rig not in self._bodies:
+            from physdrape.body.anny_body import get_anny_body
+
+            self._bodies[rig] = get_anny_body(rig)
+        return self._bodies[rig]
+
+    def pipeline(self, rig: str) -> DrapePipeline:
+        """The drape pipeline of body rig `rig` (its transfers and garments cached), in the Draper's dtype."""
+        if rig not in self._pipelines:
+            self._pipelines[rig] = DrapePipeline(self.body(rig), dtype=self.dtype)
+        return self._pipelines[rig]
+
+    def garment(self, spec) -> Template:
+        """Resolve a garment spec (see `physdrape.api.specs.garment_template`); text specs are cached."""
+        if isinstance(spec, (str, Path)) and str(spec) in self._templates:
+            return self._templates[str(spec)]
+        template = specs.garment_template(spec, smpl=self.smpl is not None)
+        if isinstance(spec, (str, Path)):
+            self._templates[str(spec)] = template
+        return template
+
+    def shape(self, spec=None) -> Tensor:
+        """Phenotypes (1, 6) float64 from None (canonical), a {name: value} dict or an array of 6;
+        on an SMPL Draper: β (see `betas`)."""
+        if self.smpl is not None:
+            return self.betas(spec)
+        return specs.anny_shape(spec, self.body("anny"))
+
+    def betas(self, spec=None) -> Tensor:
+        """SMPL shape β (1, num_betas) float64 (see `physdrape.api.specs.smpl_betas`)."""
+        return specs.smpl_betas(spec, self.body("smpl"))
+
+    def poses(self, spec=None) -> list[BodyPose]:
+        """Poses from None (the default preset), a preset name, "random:SEED", an array (J, 3) or
+        (N, J, 3) axis-angle [rad] on the "anny" rig, or a `Motion` (BVH frames).
+
+        On an SMPL Draper: None / "rest" (zero θ, the T-pose), θ as (J, 3), (3J,), (N, J, 3) or
+        (N, 3J) axis-angles [rad], or a `Motion` of an AMASS .npz."""
+        if isinstance(spec, Motion):
+            return sequences.tag_frames(spec, specs.motion_poses(spec, self.body, smpl=self.smpl is not None))
+        if self.smpl is not None:
+            return specs.smpl_poses(spec, self.body("smpl"))
+        return specs.anny_poses(spec, self.body)
+
+    material = staticmethod(specs.material)
+
+    def transfer(self, template: Template, rig: str):
+        """The garment's `SkinningTransfer` onto `rig` (fitted once, then cached)."""
+        return self.pipeline(rig).transfer(template)
+
+    # ------------------------------------------------------------------ draping
+    def drape(self, garments, *, shape=None, pose=None, material=None, refine: bool = False,
+              steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
+              refine_iters: int = 30, refine_time_s: float = 60.0) -> list[DrapeResult]:
+        """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
+
+        Args:
+            garments: one garment spec or a list (see `garment`).
+            shape: phenotypes: None (canonical, all 0.5), a dict ({"weight": 0.8}; missing at 0.5),
+                or 6 values in [0, 1] in the order `PHENOTYPE_NAMES`. SMPL: β, up to num_betas
+                values (padded with zeros); None = β = 0, or the betas of AMASS frames.
+            pose: one pose spec (see `poses`) or a list; a spec may expand to several frames.
+                A multi-frame `Motion` with warm_start (the default) is draped frame by frame,
+                each frame from the previous frame's drape (see `Motion`); its first frame, and
+                every other job, from the skinned X_init in batches.
+            material: a preset name or `Material`, or a list (one per job).
+            steps: solver steps T for this call (default: the Draper's `steps`).
+            refine: polish each drape with the physics oracle (`physics.relax`, projected Newton,
+                penalty contact; at most `refine_iters` iterations / `refine_time_s` seconds per batch).
+            keep_trace: record the solver's energy and force per step (`DrapeResult.convergence`).
+            batch_size: garments per model call; progress: show a tqdm bar over the garments.
+
+        Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
+
+        Returns:
+            one `DrapeResult` per job, in order.
+        """
+        g_specs = garments if isinstance(garments, list) else [garments]
+        p_specs = pose if isinstance(pose, list) else [pose]
+        m_specs = material if isinstance(material, list) else [material]
+        if not g_specs:
+            raise DrapeError("no garments given")
+        if batch_size < 1:
+            raise DrapeError(f"batch_size must be ≥ 1, got {batch_size}")
+        if steps is not None and (not isinstance(steps, int) or steps < 0):
+            raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
+        steps = self.steps if steps is None else steps
+        templates = [self.garment(g) for g in g_specs]
+        body_poses = [bp for p in p_specs for bp in self.poses(p)]
+        if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
+            body_poses = [BodyPose(bp.rig, bp.pose, bp.label, None, bp.sequence) for bp in body_poses]
+        materials = [self.material(m) for m in m_specs]
+        shape_t = self.shape(shape)
+        if len({len(templates), len(body_poses), len(materials)} - {1}) > 1:
+            raise DrapeError(f"cannot broadcast {len(templates)} garments, {len(body_poses)} poses and "
+                             f"{len(materials)} materials: give lists of length 1 or of one common length")
+        n = max(len(templates), len(body_poses), len(materials))
+        jobs = [_Job(templates[i % len(templates)], body_poses[i % len(body_poses)], i % len(body_poses),
+                     materials[i % len(materials)]) for i in range(n)]
+        prev = sequences.predecessors([j.pose for j in jobs], [j.template.key for j in jobs])
+        options = {"steps": steps, "refine": refine, "keep_trace": keep_trace, "refine_iters": refine_iters,
+                   "refine_time_s": refine_time_s}
+        results: dict[int, DrapeResult] = {}
+        carried: dict[int, _Warm] = {}  # the last drape of each running sequence
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n, unit="garment", desc="draping")
+        cold = [i for i in range(n) if prev[i] is None]
+        for c in range(0, len(cold), batch_size):
+            chunk = cold[c:c + batch_size]
+            for rig in dict.fromkeys(jobs[i].pose.rig for i in chunk):  # one rig (topology) per model call
+                part = [i for i in chunk if jobs[i].pose.rig == rig]
+                res, warm = self._drape_batch([jobs[i] for i in part], shape_t, **options)
+                results.update(zip(part, res))
+                carried.update((i, w) for i, w in zip(part, warm) if w is not None)
+                if bar is not None:
+                    bar.update(len(part))
+        for i in range(n):
+            if prev[i] is None:
+                continue
+            [res], [warm] = self._drape_batch([jobs[i]], shape_t, warm=[carried.pop(prev[i])],
+                                              physics_only=jobs[i].pose.sequence[2] == "solver", **options)
+            results[i], carried[i] = res, warm
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+        return [results[i] for i in range(n)]
+
+    def _refuse_penetrating_poses(self, state: BodyState, body, labels: list[str]) -> None:
+        """A static drape cannot resolve cloth pinched between arm and torso: refuse such poses."""
+        counts = arm_torso_penetration(state, body).tolist()
+        bad = [f"{label} ({count} arm vertices inside the body)" for label, count in zip(labels, counts)
+               if count > self.arm_contact_tolerance]
+        if bad:
+            raise DrapeError(
+                f"pose drives the arms through the torso: {'; '.join(bad)}. PhysDrape drapes static poses with "
+                "the arms clear of the body: choose another pose or frame (or Draper(check_pose=False) to drape anyway)"
+            )
+
+    @torch.no_grad()
+    def _drape_batch(self, jobs: list[_Job], shape: Tensor, *, steps: int, refine: bool, keep_trace: bool,
+                     refine_iters: int, refine_time_s: float, warm: list[_Warm] | None = None,
+                     physics_only: bool = False) -> tuple[list[DrapeResult], list[_Warm | None]]:
+        """Drape one batch of jobs on one rig. warm: per job the previous frame (None: X_init by
+        skinning); physics_only: skip the network (solver steps with f̂ = 0 and the collision
+        handler only). Returns the results and, for frames of a warm-started motion, what the
+        next frame starts from (else None)."""
+        t0 = time.perf_counter()
+        rig = jobs[0].pose.rig
+        body = self.body(rig)
+        pipeline = self.pipeline(rig)
+        poses = {job.pose_id: job.pose for job in jobs}  # one posed body per distinct pose
+        slot = {pose_id: k for k, pose_id in enumerate(poses)}
+        pose_t = torch.cat([p.pose for p in poses.values()]).to(POSE_DTYPE)
+        shapes = torch.cat([shape if p.shape is None else p.shape for p in poses.values()]).to(POSE_DTYPE)
+        state = body(shapes, pose_t)
+        if self.check_pose and checks_arms(rig):
+            self._refuse_penetrating_poses(state, body, [p.label for p in poses.values()])
+        t1 = time.perf_counter()
+        pipeline_jobs, following = [], []
+        for k, job in enumerate(jobs):
+            b = slot[job.pose_id]
+            x_init = None
+            transforms = None
+            if job.pose.sequence is not None or (warm is not None and warm[k] is not None):
+                transforms = sequences.blended_transforms(pipeline.transfer(job.template), select(state, b))
+            if warm is not None and warm[k] is not None:
+                x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
+                                                transforms, select(state, b))
+            pipeline_jobs.append(Job(job.template, b, job.material, x_init))
+            following.append(transforms)
+        inp = pipeline.build(pipeline_jobs, state)
+        t2 = time.perf_counter()
+        run = self.model.physics_only if physics_only else self.model
+        out = run(inp, steps=steps, keep_trace=keep_trace)
+        x = out.x
+        t3 = time.perf_counter()
+        convergence = self._convergence(out, inp, len(jobs)) if keep_trace else [{} for _ in jobs]
+        t3b = time.perf_counter()
+        if refine:
+            c64 = Cloth.build(inp.garments.to(torch.float64), [job.material for job in jobs])
+            b64 = BodySurface(state.verts.to(torch.float64), state.faces)
+            body_of_garment = torch.tensor([job.body for job in pipeline_jobs])
+            res = relax(x.to(torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,
+                        time_budget_s=refine_time_s, contact_stiffness=self.model_config.contact_stiffness,
+                        margin=self.model_config.margin)
+            x = res.x.to(self.dtype)
+        t4 = time.perf_counter()
+        results = self._results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm)
+        t5 = time.perf_counter()
+        timings = {"body_s": t1 - t0, "init_s": t2 - t1, "model_s": t3 - t2, "trace_s": t3b - t3, "refine_s": t4 - t3b,
+                   "metrics_s": t5 - t4, "total_s": t5 - t0, "batch_size": float(len(jobs))}
+        timings["per_garment_s"] = timings["total_s"] / len(jobs)
+        for r in results:
+            r.timings = dict(timings)
+        xs = inp.garments.split(x)
+        nxt = [None if t is None else _Warm(xs[k].to(POSE_DTYPE), t) for k, t in enumerate(following)]
+        return results, nxt
+
+    @staticmethod
+    def _convergence(out, inp, count: int) -> list[dict[str, list[float]]]:
+        """Per garment, the energy [J] and total force [N] after each solver step (t = 0 … T)."""
+        convergence: list[dict[str, list[float]]] = [{"energy": [], "force": []} for _ in range(count)]
+        for xt in (out.x_gnn, *out.trace):
+            e = sum(energy_terms(xt, inp.cloth).values())
+            f = (internal_forces(xt, inp.cloth) + out.f_hat).norm(dim=-1)
+            fsum = torch.zeros(count, dtype=f.dtype).index_add_(0, inp.garments.vert_garment, f)
+            for k in range(count):
+                convergence[k]["energy"].append(float(e[k]))
+                convergence[k]["force"].append(float(fsum[k]))
+        return convergence
+
+    def _results(self, jobs: list[_Job], body_of: list[int], inp, x: Tensor, state: BodyState, convergence,
+                 warm) -> list[DrapeResult]:
+        """One `DrapeResult` per job (timings filled in by the caller)."""
+        batch, cloth, bodies = inp.garments, inp.cloth, inp.bodies
+        metrics = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth).as_dict()
+        weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
+        residual = batch.split((internal_forces(x, cloth).norm(dim=-1) / weight)[:, None])
+        inside = bodies.query(x[batch.faces].mean(dim=1), body_index=inp.body_index[batch.faces[:, 0]]).inside
+        inside = torch.split(inside, [int(n) for n in torch.bincount(batch.face_garment, minlength=len(jobs))])
+        xs, inits = batch.split(x), batch.split(inp.x_init)
+        body_faces = state.faces.cpu().numpy().astype(np.int64)
+        return [DrapeResult(
+            name=job.template.name,
+            verts=xs[k].cpu().numpy(),
+            faces=job.template.faces,
+            body_verts=state.verts[body_of[k]].to(self.dtype).cpu().numpy(),
+            body_faces=body_faces,
+            x_init=inits[k].cpu().numpy(),
+            material=job.material,
+            pose=job.pose.label,
+            metrics={name: float(values[k]) for name, values in metrics.items()},
+            timings={},
+            vertex_residual=residual[k][:, 0].cpu().numpy(),
+            inside_faces=inside[k].cpu().numpy().astype(bool),
+            convergence=convergence[k],
+            init="warm" if warm is not None and warm[k] is not None else "skinning",
+        ) for k, job in enumerate(jobs)]
+
+
+_DEFAULT_DRAPER: Draper | None = None
+
+
+def drape(garments="default", **kwargs) -> list[DrapeResult]:
+    """`Draper().drape(...)` with a Draper (the bundled model) created on first use and reused."""
+    global _DEFAULT_DRAPER
+    if _DEFAULT_DRAPER is None:
+        _DEFAULT_DRAPER = Draper()
+    return _DEFAULT_DRAPER.drape(garments, **kwargs)

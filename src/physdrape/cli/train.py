@@ -1,0 +1,73 @@
+"""`physdrape train`: train a model (data-parallel under torchrun: gloo on CPU, NCCL on GPUs)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import replace
+
+import torch
+
+from physdrape.cli.common import CLIError
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train a model from a YAML run config into a run directory (resumable)."""
+    import torch.distributed as dist
+
+    from physdrape.config_io import load_config
+    from physdrape.train.data import DrapeSource
+    from physdrape.train.trainer import TrainConfig, Trainer
+
+    if (args.config is None) == (args.recipe is None):
+        raise CLIError("give either --config FILE (one run) or --recipe FILE (stages in order), not both")
+    if args.recipe is not None:
+        return _train_recipe(args)
+    config = load_config(TrainConfig, args.config)
+    if args.steps is not None:
+        config = replace(config, optim=replace(config.optim, steps=args.steps))
+    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    if distributed:
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        trainer = Trainer(config, DrapeSource(config.data), args.run_dir)
+        trainer.run(resume=args.resume)
+    finally:
+        if distributed:
+            dist.barrier()  # no rank tears gloo down while another still talks to it
+            dist.destroy_process_group()
+    return 0
+
+
+def _train_recipe(args: argparse.Namespace) -> int:
+    """Train a recipe's stages in order (see `physdrape.train.recipe`)."""
+    import shlex
+    import sys
+
+    from physdrape.train.data import DrapeSource
+    from physdrape.train.recipe import run_recipe
+
+    if args.steps is not None:
+        raise CLIError("--steps overrides one config's optim.steps; a recipe's stages set their own")
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        raise CLIError("a recipe runs in one process; run its stages with --config under torchrun instead")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    run_recipe(args.recipe, args.run_dir, source=lambda config: DrapeSource(config.data),
+               command=shlex.join(["physdrape", *sys.argv[1:]]), resume=args.resume)
+    return 0
+
+
+def add_parser(sub) -> None:
+    """The `train` subcommand."""
+    train = sub.add_parser("train", help="train a PhysDrape model (self-supervised, resumable)")
+    train.add_argument("--config", help="YAML run config (see configs/cpu_default.yaml)")
+    train.add_argument("--recipe", help="YAML recipe: configs trained as consecutive stages, then shipped "
+                       "(configs/recipes/shipped.yaml trains the bundled model)")
+    train.add_argument("--run-dir", required=True, help="directory for checkpoints, metrics.jsonl, TensorBoard")
+    train.add_argument("--resume", action="store_true", help="continue from the run directory's latest checkpoint")
+    train.add_argument("--steps", type=int, help="override optim.steps")
+    train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
+    train.set_defaults(func=cmd_train)

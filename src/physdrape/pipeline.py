@@ -1,0 +1,143 @@
+"""The drape pipeline: garment templates × posed bodies × materials → the model's input.
+
+Every drape takes this path, whoever asks for it: the public API (`physdrape.api.Draper`), the
+training data (`physdrape.train.data.DrapeSource`) and the evaluation protocol
+(`physdrape.eval.evaluate`). Per job it takes a template authored on the body model's canonical
+body, one posed body of a `BodyState` batch and a material, and builds the kinematic
+initialisation X_init (the garment skinned onto the posed body by its `SkinningTransfer`, then
+edge-stretch limited with the body held out; paper Eq. 5) unless the job brings its own start (a
+warm-started frame of a sequence). What does not change between drapes is computed once and
+cached per template: its skinning transfer onto the body model and its rest-state `Garment`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from physdrape.body.model import BodyState
+from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.proximity import BodySurface
+from physdrape.model import DrapeInput
+from physdrape.physics import Cloth, Material
+
+
+#: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
+#: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
+DEFAULT_DTYPE = torch.float32
+#: The dtype bodies are posed and garments skinned in before the cast to the model's dtype.
+POSE_DTYPE = torch.float64
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    h = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+@dataclass(frozen=True, eq=False)
+class Template:
+    """A garment template on the canonical body.
+
+    Attributes:
+        name: a label for messages and outputs.
+        verts: rest positions [m], shape (V, 3) float64.
+        faces: triangles, shape (F, 3) int64.
+        key: a digest of verts and faces: equal meshes share cached transfers.
+    """
+
+    name: str
+    verts: np.ndarray
+    faces: np.ndarray
+    key: str
+
+    @staticmethod
+    def from_mesh(verts, faces, *, name: str = "garment") -> Template:
+        """A template from array-likes (numpy or torch) of rest positions [m] (V, 3) and faces (F, 3)."""
+        v = np.asarray(verts.detach().cpu() if isinstance(verts, Tensor) else verts, dtype=np.float64)
+        f = np.asarray(faces.detach().cpu() if isinstance(faces, Tensor) else faces).astype(np.int64)
+        return Template(name=name, verts=v, faces=f, key=_digest(v, f))
+
+    @property
+    def num_verts(self) -> int:
+        return int(self.verts.shape[0])
+
+
+@dataclass(frozen=True)
+class Job:
+    """One drape: `template` on body `body` of the posed batch, in `material`; `x_init` [m] (V, 3)
+    a start of its own (a warm-started frame) or None for the skinned X_init."""
+
+    template: Template
+    body: int
+    material: Material
+    x_init: Tensor | None = None
+
+
+def select(state: BodyState, index: int) -> BodyState:
+    """Body `index` of a posed batch as a batch of one (what a skinning transfer takes)."""
+    sl = slice(index, index + 1)
+    return BodyState(verts=state.verts[sl], faces=state.faces, normals=state.normals[sl] if state.normals.numel() else
+                     state.normals, rest_verts=state.rest_verts[sl], vertex_transforms=state.vertex_transforms[sl])
+
+
+class DrapePipeline:
+    """Builds `DrapeInput`s for one body model (one rig and topology).
+
+    Args:
+        body: the body model the templates are authored on (`canonical_verts`, `faces`), e.g. an
+            `AnnyBody` of one rig or an `SMPLBody`.
+        dtype: of the garments, bodies and X_init handed to the model.
+        max_stretch: the transfer's bound on X_init's edge stretch (see `SkinningTransfer`);
+            None keeps the transfer's default.
+    """
+
+    def __init__(self, body, *, dtype: torch.dtype = DEFAULT_DTYPE, max_stretch: float | None = None) -> None:
+        self.body = body
+        self.dtype = dtype
+        self.max_stretch = max_stretch
+        self._transfers: dict[str, SkinningTransfer] = {}
+        self._garments: dict[str, Garment] = {}
+
+    def transfer(self, template: Template) -> SkinningTransfer:
+        """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
+        if template.key not in self._transfers:
+            transfer = SkinningTransfer.fit(self.body.canonical_verts(dtype=torch.float64), self.body.faces,
+                                            torch.from_numpy(template.verts), torch.from_numpy(template.faces))
+            if self.max_stretch is not None:
+                transfer = replace(transfer, max_stretch=self.max_stretch)
+            self._transfers[template.key] = transfer
+        return self._transfers[template.key]
+
+    def garment(self, template: Template) -> Garment:
+        """The template's rest-state quantities in the pipeline's dtype (computed once)."""
+        if template.key not in self._garments:
+            self._garments[template.key] = Garment.from_mesh(template.verts, template.faces, name=template.name,
+                                                             dtype=self.dtype)
+        return self._garments[template.key]
+
+    def x_init(self, template: Template, state: BodyState, index: int = 0) -> Tensor:
+        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype."""
+        with torch.no_grad():
+            return self.transfer(template).apply(select(state, index))[0]
+
+    def build(self, jobs: Sequence[Job], state: BodyState) -> DrapeInput:
+        """The model's input for `jobs` on the posed bodies of `state` (one job per garment)."""
+        if not jobs:
+            raise ValueError("no jobs to drape")
+        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, state, job.body)).to(self.dtype)
+                  for job in jobs]
+        batch = GarmentBatch.pack([self.garment(job.template) for job in jobs])
+        cloth = Cloth.build(batch, [job.material for job in jobs])
+        bodies = BodySurface(state.verts.detach().to(self.dtype), state.faces)
+        body_of_vertex = torch.tensor([job.body for job in jobs], dtype=torch.int64)[batch.vert_garment]
+        return DrapeInput(batch, cloth, torch.cat(x_init), bodies, body_of_vertex)
