@@ -1,0 +1,135 @@
+"""A training recipe: run configs as consecutive stages into one run directory, then ship.
+
+A recipe is a YAML file::
+
+    stages:                      # run in order; stage k > 0 starts from stage k-1's weights
+      - {name: explicit, config: configs/cpu_default.yaml}
+      - {name: two_level, config: configs/cpu_two_level.yaml}
+    ship:                        # optional: where the last stage's model and record go
+      model_out: src/physdrape/assets/models/cpu_default
+      record_out: docs/training/shipped
+
+`physdrape train --recipe FILE --run-dir DIR [--resume]` trains stage k into DIR/<name>, with
+``optim.init_from`` set to DIR/<previous name> (whatever the stage's config says), skips stages
+that already reached their steps, and resumes an interrupted stage from its latest checkpoint.
+DIR/recipe.json records the command, and per stage its config, seed, steps and the wall time
+spent in it (summed over resumed segments). With ``ship``, the last stage's model is exported and
+its training record written (`physdrape.train.ship`), with the recipe's record beside it.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import yaml
+
+from physdrape.atomic import write_text
+from physdrape.checkpoint import latest_checkpoint
+from physdrape.config_io import ConfigError, load_config
+from physdrape.train.trainer import SampleSource, TrainConfig, Trainer
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage: a name (its run sub-directory) and the YAML run config it trains."""
+
+    name: str
+    config: Path
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Stages in order and, optionally, where to ship the last one (model dir, record dir)."""
+
+    stages: tuple[Stage, ...]
+    model_out: Path | None = None
+    record_out: Path | None = None
+
+
+def load_recipe(path: str | Path) -> Recipe:
+    """Read a recipe strictly; config paths are relative to the current directory (the checkout)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"recipe file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict) or set(data) - {"stages", "ship"} or not isinstance(data.get("stages"), list):
+        raise ConfigError(f"{path}: a recipe is a mapping with a list `stages` (each {{name, config}}) and an "
+                          "optional `ship` {model_out, record_out}")
+    stages = []
+    for k, item in enumerate(data["stages"]):
+        if not isinstance(item, dict) or set(item) != {"name", "config"}:
+            raise ConfigError(f"{path}: stage {k} must have exactly `name` and `config`, got {item!r}")
+        name = str(item["name"])
+        if not name or "/" in name or name.startswith("."):
+            raise ConfigError(f"{path}: stage name {name!r} must be a plain directory name")
+        stages.append(Stage(name, Path(item["config"])))
+    if not stages or len({s.name for s in stages}) != len(stages):
+        raise ConfigError(f"{path}: give at least one stage, with distinct names")
+    ship = data.get("ship") or {}
+    if set(ship) - {"model_out", "record_out"} or (ship and len(ship) != 2):
+        raise ConfigError(f"{path}: `ship` takes exactly model_out and record_out")
+    return Recipe(tuple(stages), Path(ship["model_out"]) if ship else None,
+                  Path(ship["record_out"]) if ship else None)
+
+
+def stage_configs(recipe: Recipe, run_dir: Path) -> list[TrainConfig]:
+    """Each stage's config, chained: stage k > 0 starts from stage k-1's run directory."""
+    configs = []
+    for k, stage in enumerate(recipe.stages):
+        config = load_config(TrainConfig, stage.config)
+        if k > 0:
+            previous = run_dir / recipe.stages[k - 1].name
+            config = replace(config, optim=replace(config.optim, init_from=str(previous)))
+        configs.append(config)
+    return configs
+
+
+def _finished_step(stage_dir: Path) -> int:
+    latest = latest_checkpoint(stage_dir) if stage_dir.is_dir() else None
+    return int(latest.name.split("-")[-1]) if latest is not None else 0
+
+
+def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable[[TrainConfig], SampleSource],
+               command: str, resume: bool = False, log=print) -> dict:
+    """Train the recipe's stages in order into run_dir (see the module docstring); returns the record.
+
+    source: builds the sample source of a stage from its config (the CLI: `DrapeSource(config.data)`).
+    """
+    recipe = load_recipe(recipe_path)
+    run_dir = Path(run_dir)
+    configs = stage_configs(recipe, run_dir)  # every config is checked before any training
+    record_path = run_dir / "recipe.json"
+    if not resume and any((run_dir / s.name).exists() for s in recipe.stages):
+        raise ConfigError(f"{run_dir} already holds stages of a run: pass --resume to continue it, or choose "
+                          "another --run-dir")
+    previous = json.loads(record_path.read_text()) if record_path.is_file() else {}
+    spent = {s["name"]: s.get("wall_s", 0.0) for s in previous.get("stages", [])}
+    record = {"command": command, "recipe": str(recipe_path), "stages": []}
+    for stage, config in zip(recipe.stages, configs):
+        stage_dir = run_dir / stage.name
+        done = _finished_step(stage_dir)
+        if done < config.optim.steps:
+            log(f"[recipe] stage {stage.name}: {stage.config}, steps {done}..{config.optim.steps}")
+            t0 = time.perf_counter()
+            Trainer(config, source(config), stage_dir).run(resume=done > 0)
+            spent[stage.name] = spent.get(stage.name, 0.0) + time.perf_counter() - t0
+        record["stages"].append({"name": stage.name, "config": str(stage.config), "seed": config.optim.seed,
+                                 "steps": config.optim.steps, "init_from": config.optim.init_from,
+                                 "wall_s": spent.get(stage.name, 0.0)})
+        write_text(record_path, json.dumps(record, indent=2) + "\n")
+    record["wall_s"] = sum(s["wall_s"] for s in record["stages"])
+    write_text(record_path, json.dumps(record, indent=2) + "\n")
+    if recipe.model_out is not None:
+        from physdrape.train.ship import ship
+
+        ship(run_dir / recipe.stages[-1].name, recipe.model_out, recipe.record_out, command=command)
+        write_text(recipe.record_out / "recipe.json", json.dumps(record, indent=2) + "\n")
+        log(f"[recipe] shipped {recipe.model_out} and its record {recipe.record_out}")
+    return record

@@ -1,0 +1,101 @@
+"""Training recipes: stages run in order, each from the last; an interrupted recipe resumes; the
+last stage is shipped with its record."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+import yaml
+
+from physdrape import checkpoint as ckpt
+from physdrape.config_io import ConfigError, to_mapping
+from physdrape.model import ModelConfig
+from physdrape.train.recipe import load_recipe, run_recipe
+from physdrape.train.synthetic import SyntheticSource
+from physdrape.train.trainer import OptimConfig, TrainConfig
+
+
+def _config(path, *, solver: str, steps: int, seed: int, zero: bool = False, init_from: str = ""):
+    model = ModelConfig(latent=8, blocks=1, normalizer_accumulations=2, solver=solver, zero_init_output=zero)
+    config = TrainConfig(model=model, optim=OptimConfig(steps=steps, batch_size=2, lr=1e-3, checkpoint_every=2,
+                                                        log_every=1, seed=seed, init_from=init_from))
+    path.write_text(yaml.safe_dump(to_mapping(config)))
+    return path
+
+
+@pytest.fixture
+def recipe(tmp_path):
+    first = _config(tmp_path / "a.yaml", solver="explicit", steps=4, seed=1)
+    second = _config(tmp_path / "b.yaml", solver="two_level", steps=3, seed=2, zero=True,
+                     init_from="replaced/by/the/recipe")
+    path = tmp_path / "recipe.yaml"
+    path.write_text(yaml.safe_dump({"stages": [{"name": "one", "config": str(first)},
+                                               {"name": "two", "config": str(second)}],
+                                    "ship": {"model_out": str(tmp_path / "model"),
+                                             "record_out": str(tmp_path / "record")}}))
+    return path
+
+
+def source(_config):
+    return SyntheticSource()
+
+
+def test_stages_chain_resume_and_ship(recipe, tmp_path):
+    run = tmp_path / "run"
+    record = run_recipe(recipe, run, source=source, command="physdrape train --recipe r", log=lambda _: None)
+    assert [s["name"] for s in record["stages"]] == ["one", "two"]
+    assert record["stages"][0]["init_from"] == ""  # the first stage's own setting: random weights
+    assert record["stages"][1]["init_from"] == str(run / "one")  # the second starts from the first
+    assert all(s["wall_s"] > 0 for s in record["stages"]) and record["stages"][1]["seed"] == 2
+    # stage two started from stage one's model: it took over its input statistics (frozen after
+    # stage one's warm-up) instead of gathering its own
+    one, _ = ckpt.read_checkpoint(run / "one")
+    two, _ = ckpt.read_checkpoint(run / "two")
+    stats = [k for k in one if k.startswith(("node_normalizer.", "edge_normalizer."))]
+    assert stats and all(torch.equal(one[k], two[k]) for k in stats)
+    # shipped: the last stage's model with its training record and the recipe's
+    model, info = ckpt.load_model(tmp_path / "model")
+    assert model.config.solver.value == "two_level"
+    shipped, _ = ckpt.read_checkpoint(tmp_path / "model")
+    last, _ = ckpt.read_checkpoint(run / "two")
+    assert all(torch.equal(shipped[k], last[k]) for k in last)
+    assert json.loads((tmp_path / "record" / "recipe.json").read_text())["stages"][1]["name"] == "two"
+    # a second call without --resume refuses; with it, finished stages are skipped
+    with pytest.raises(ConfigError, match="--resume"):
+        run_recipe(recipe, run, source=source, command="c", log=lambda _: None)
+    logs = []
+    again = run_recipe(recipe, run, source=source, command="c", resume=True, log=logs.append)
+    assert not any(line.startswith("[recipe] stage") for line in logs)
+    assert [s["wall_s"] for s in again["stages"]] == [s["wall_s"] for s in record["stages"]]
+
+
+def test_an_interrupted_stage_resumes(recipe, tmp_path):
+    run = tmp_path / "run"
+    run_recipe(recipe, run, source=source, command="c", log=lambda _: None)
+    (run / "two" / "latest").write_text("step-00000002\n")  # as if killed after step 2 of 3
+    logs = []
+    run_recipe(recipe, run, source=source, command="c", resume=True, log=logs.append)
+    assert logs[0].startswith("[recipe] stage two") and "steps 2..3" in logs[0]
+    assert ckpt.latest_checkpoint(run / "two").name == "step-00000003"
+
+
+@pytest.mark.parametrize("text, pattern", [
+    ("stages: []", "at least one stage"),
+    ("stages: [{name: a}]", "exactly `name` and `config`"),
+    ("stages: [{name: ../a, config: c.yaml}]", "plain directory name"),
+    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m}", "exactly model_out and record_out"),
+    ("steps: 3", "a list `stages`"),
+])
+def test_a_bad_recipe_is_named(tmp_path, text, pattern):
+    path = tmp_path / "r.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=pattern):
+        load_recipe(path)
+
+
+def test_the_shipped_recipe_names_existing_configs():
+    recipe = load_recipe("configs/recipes/shipped.yaml")
+    assert [s.config.is_file() for s in recipe.stages] == [True] * len(recipe.stages)
+    assert str(recipe.model_out) == "src/physdrape/assets/models/cpu_default"
