@@ -34,7 +34,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:  # a bad flag value: exit 2 with the message, no traceback
         raise CLIError(f"{exc} (see physdrape eval --help)") from None
-    command = shlex.join(sys.argv)
+    command = shlex.join(["physdrape", *sys.argv[1:]])
     results = evaluate(args.checkpoint, config, ablation=ablation, command=command,
                        log=lambda msg: print(msg, file=sys.stderr))
     json_path, md_path = write_results(results, args.out)

@@ -56,7 +56,7 @@ def plot_metrics(records: list[dict], out: str | os.PathLike, *, window: int = 2
         ax.plot(steps, [r[key] for r in records], label=key)
     ax.set_yscale("log")
     ax.set_xlabel("step")
-    ax.set_title("learned η (explicit solver: m/N; jacobi: 1), γ, δ")
+    ax.set_title("learned η (explicit solver: m/N; two-level: a step fraction), γ, δ")
     ax.legend(fontsize=8)
     fig.tight_layout()
     try:
