@@ -63,13 +63,17 @@ def to_mapping(config) -> dict:
     return plain(config)
 
 
-def load_config(cls, path: str | Path):
-    """Read a YAML (or JSON) file into `cls` strictly."""
+def read_yaml(path: str | Path, *, what: str = "config"):
+    """The data of a YAML (or JSON) file; ConfigError when it is missing or malformed."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"config file not found: {path}")
+        raise ConfigError(f"{what} file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        return yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path} is not valid YAML: {exc}") from exc
-    return from_mapping(cls, data, where=str(path))
+        raise ConfigError(f"{path} is not valid YAML: {exc}") from None
+
+
+def load_config(cls, path: str | Path):
+    """Read a YAML (or JSON) file into `cls` strictly."""
+    return from_mapping(cls, read_yaml(path), where=str(path))

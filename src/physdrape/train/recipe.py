@@ -25,11 +25,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import yaml
-
 from physdrape.atomic import write_text
 from physdrape.checkpoint import latest_checkpoint
-from physdrape.config_io import ConfigError, load_config
+from physdrape.config_io import ConfigError, load_config, read_yaml
 from physdrape.train.trainer import SampleSource, TrainConfig, Trainer
 
 
@@ -53,12 +51,7 @@ class Recipe:
 def load_recipe(path: str | Path) -> Recipe:
     """Read a recipe strictly; config paths are relative to the current directory (the checkout)."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"recipe file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path} is not valid YAML: {exc}") from None
+    data = read_yaml(path, what="recipe")
     if not isinstance(data, dict) or set(data) - {"stages", "ship"} or not isinstance(data.get("stages"), list):
         raise ConfigError(f"{path}: a recipe is a mapping with a list `stages` (each {{name, config}}) and an "
                           "optional `ship` {model_out, record_out}")
