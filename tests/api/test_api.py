@@ -93,13 +93,11 @@ def test_bad_input_names_problem_and_fix(draper, kwargs, pattern):
         draper.drape(garments, **kwargs)
 
 
-def test_garment_in_centimetres_is_refused(draper):
+def test_garment_in_centimetres_is_refused_naming_units(draper):
     from physdrape.garments import default_garment
 
     g = default_garment()
-    from physdrape.geometry.mesh import MeshError
-
-    with pytest.raises(MeshError, match="metres"):
+    with pytest.raises(DrapeError, match='metres and it looks like centimetres: pass units="cm"'):
         draper.drape((g.verts * 100.0, g.faces))
 
 

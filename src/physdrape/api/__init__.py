@@ -12,7 +12,10 @@ Example (the README snippet; `tests/api/test_api.py` runs it with a test model):
     res.render("out/render.png")
 
 Conventions: SI units, y-up metres; garment templates sit on the canonical Anny body (all
-phenotypes 0.5, rest A-pose). One model pass plus `steps` explicit solver steps per batch.
+phenotypes 0.5, rest A-pose), around or on it (a garment that neither touches nor surrounds it is
+refused unless ``allow_detached=True``). Garment files and meshes in another unit are read with
+``units="cm"`` (or "dm", "mm"); results are in metres. One model pass plus `steps` explicit
+solver steps per batch.
 
 SMPL / SMPL-X (model files never shipped): ``Draper(smpl_model="SMPL_NEUTRAL.npz")`` (or
 ``body=SMPLBody(...)``) drapes on that body instead: shape = β, pose = θ or AMASS frames
@@ -24,13 +27,14 @@ from the previous frame's drape carried along by the body's motion, see `Motion`
 ``Motion(..., warm_start=False)`` drapes every frame independently, as one batch.
 
 Modules: `types` (the error and result types), `specs` (garment, shape, pose and material specs),
-`sequences` (warm-started motions), `draper` (the `Draper`), `fitting` (`fit_garment`).
+`sequences` (warm-started motions), `placement` (the garment's unit and its place on the body),
+`draper` (the `Draper`), `fitting` (`fit_garment`).
 """
 
 from physdrape.api.draper import Draper, drape
 from physdrape.api.fitting import fit_garment
 from physdrape.api.specs import DEFAULT_POSE, GARMENT_CATEGORIES, load_smpl_body
-from physdrape.api.types import DrapeError, DrapeResult, FitResult, Motion
+from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, FitResult, Motion
 
-__all__ = ["DEFAULT_POSE", "GARMENT_CATEGORIES", "DrapeError", "DrapeResult", "Draper", "FitResult", "Motion",
-           "drape", "fit_garment", "load_smpl_body"]
+__all__ = ["DEFAULT_POSE", "GARMENT_CATEGORIES", "DrapeError", "DrapeResult", "DrapeWarning", "Draper", "FitResult",
+           "Motion", "drape", "fit_garment", "load_smpl_body"]

@@ -9,6 +9,7 @@ materials into jobs, drapes the independent jobs in batches through the drape pi
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,9 +19,9 @@ import torch
 from torch import Tensor
 
 from physdrape import checkpoint as ckpt
-from physdrape.api import sequences, specs
+from physdrape.api import placement, sequences, specs
 from physdrape.api.specs import BodyPose
-from physdrape.api.types import DrapeError, DrapeResult, Motion
+from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.geometry.proximity import BodySurface
@@ -109,7 +110,9 @@ class Draper:
         #: the SMPL body when this Draper drapes on SMPL (then Anny is never loaded), else None
         self.smpl = self._bodies.get("smpl")
         self._pipelines: dict[str, DrapePipeline] = {}
-        self._templates: dict[str, Template] = {}
+        self._templates: dict[tuple[str, str], Template] = {}
+        self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
+        self._detached: dict[tuple[str, str], str | None] = {}
 
     # ------------------------------------------------------------------ inputs
     def body(self, rig: str = "anny"):
@@ -130,14 +133,43 @@ class Draper:
             self._pipelines[rig] = DrapePipeline(self.body(rig), dtype=self.dtype)
         return self._pipelines[rig]
 
-    def garment(self, spec) -> Template:
-        """Resolve a garment spec (see `physdrape.api.specs.garment_template`); text specs are cached."""
-        if isinstance(spec, (str, Path)) and str(spec) in self._templates:
-            return self._templates[str(spec)]
-        template = specs.garment_template(spec, smpl=self.smpl is not None)
+    def garment(self, spec, *, units: str = "m") -> Template:
+        """Resolve a garment spec (see `physdrape.api.specs.garment_template`) whose files and
+        meshes are in `units`; text specs are cached."""
+        key = (str(spec), units)
+        if isinstance(spec, (str, Path)) and key in self._templates:
+            return self._templates[key]
+        template = specs.garment_template(spec, smpl=self.smpl is not None, units=units)
         if isinstance(spec, (str, Path)):
-            self._templates[str(spec)] = template
+            self._templates[key] = template
         return template
+
+    def detached(self, template: Template, rig: str = "anny") -> str | None:
+        """Why `template` cannot hang on the canonical body of `rig` (it neither touches nor
+        surrounds it, see `physdrape.api.placement`), or None; computed once per template."""
+        key = (template.key, rig)
+        if key not in self._detached:
+            if rig not in self._canonical:
+                body = self.body(rig)
+                verts = body.canonical_verts(dtype=torch.float64)
+                self._canonical[rig] = (verts.numpy(), BodySurface(verts, body.faces))
+            body_verts, surface = self._canonical[rig]
+            nearest, gap = placement.attachment(template.verts, body_verts, surface)
+            self._detached[key] = placement.detached_reason(template.name, nearest, gap)
+        return self._detached[key]
+
+    def _check_attached(self, jobs: list[_Job], allow_detached: bool) -> None:
+        """Refuse (or, allow_detached, warn about) templates that hang on nothing."""
+        reasons = dict.fromkeys(r for job in jobs if (r := self.detached(job.template, job.pose.rig)))
+        if not reasons:
+            return
+        if not allow_detached:
+            canonical = ("SMPL with β = 0 in its zero pose, the T-pose" if self.smpl is not None
+                         else "Anny with all phenotypes 0.5 in its rest A-pose")
+            raise DrapeError(f"{'; '.join(reasons)}. "
+                             f"{placement.detached_advice(canonical, fit_hint=self.smpl is None)}")
+        for reason in reasons:
+            warnings.warn(f"{reason}; draped anyway, as allowed", DrapeWarning, stacklevel=3)
 
     def shape(self, spec=None) -> Tensor:
         """Phenotypes (1, 6) float64 from None (canonical), a {name: value} dict or an array of 6;
@@ -171,7 +203,8 @@ class Draper:
     # ------------------------------------------------------------------ draping
     def drape(self, garments, *, shape=None, pose=None, material=None, refine: bool = False,
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
-              refine_iters: int = 30, refine_time_s: float = 60.0) -> list[DrapeResult]:
+              refine_iters: int = 30, refine_time_s: float = 60.0, units: str = "m",
+              allow_detached: bool = False) -> list[DrapeResult]:
         """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
@@ -189,6 +222,11 @@ class Draper:
                 penalty contact; at most `refine_iters` iterations / `refine_time_s` seconds per batch).
             keep_trace: record the solver's energy and force per step (`DrapeResult.convergence`).
             batch_size: garments per model call; progress: show a tqdm bar over the garments.
+            units: the unit of garment files (.obj/.ply) and (verts, faces) given here: "m" (the
+                default), "dm", "cm" or "mm"; they are converted to metres (the bundled and
+                generated garments and .mhclo are placed in metres already). Results are in metres.
+            allow_detached: drape a garment that neither touches nor surrounds the canonical body
+                (warning with a `DrapeWarning`) instead of refusing it with a DrapeError.
 
         Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
 
@@ -205,7 +243,7 @@ class Draper:
         if steps is not None and (not isinstance(steps, int) or steps < 0):
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         steps = self.steps if steps is None else steps
-        templates = [self.garment(g) for g in g_specs]
+        templates = [self.garment(g, units=units) for g in g_specs]
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
             body_poses = [BodyPose(bp.rig, bp.pose, bp.label, None, bp.sequence) for bp in body_poses]
@@ -217,6 +255,7 @@ class Draper:
         n = max(len(templates), len(body_poses), len(materials))
         jobs = [_Job(templates[i % len(templates)], body_poses[i % len(body_poses)], i % len(body_poses),
                      materials[i % len(materials)]) for i in range(n)]
+        self._check_attached(jobs, allow_detached)
         prev = sequences.predecessors([j.pose for j in jobs], [j.template.key for j in jobs])
         options = {"steps": steps, "refine": refine, "keep_trace": keep_trace, "refine_iters": refine_iters,
                    "refine_time_s": refine_time_s}
@@ -227,26 +266,28 @@ class Draper:
             from tqdm import tqdm
 
             bar = tqdm(total=n, unit="garment", desc="draping")
-        cold = [i for i in range(n) if prev[i] is None]
-        for c in range(0, len(cold), batch_size):
-            chunk = cold[c:c + batch_size]
-            for rig in dict.fromkeys(jobs[i].pose.rig for i in chunk):  # one rig (topology) per model call
-                part = [i for i in chunk if jobs[i].pose.rig == rig]
-                res, warm = self._drape_batch([jobs[i] for i in part], shape_t, **options)
-                results.update(zip(part, res))
-                carried.update((i, w) for i, w in zip(part, warm) if w is not None)
+        try:
+            cold = [i for i in range(n) if prev[i] is None]
+            for c in range(0, len(cold), batch_size):
+                chunk = cold[c:c + batch_size]
+                for rig in dict.fromkeys(jobs[i].pose.rig for i in chunk):  # one rig (topology) per model call
+                    part = [i for i in chunk if jobs[i].pose.rig == rig]
+                    res, warm = self._drape_batch([jobs[i] for i in part], shape_t, **options)
+                    results.update(zip(part, res))
+                    carried.update((i, w) for i, w in zip(part, warm) if w is not None)
+                    if bar is not None:
+                        bar.update(len(part))
+            for i in range(n):
+                if prev[i] is None:
+                    continue
+                [res], [warm] = self._drape_batch([jobs[i]], shape_t, warm=[carried.pop(prev[i])],
+                                                  physics_only=jobs[i].pose.sequence[2] == "solver", **options)
+                results[i], carried[i] = res, warm
                 if bar is not None:
-                    bar.update(len(part))
-        for i in range(n):
-            if prev[i] is None:
-                continue
-            [res], [warm] = self._drape_batch([jobs[i]], shape_t, warm=[carried.pop(prev[i])],
-                                              physics_only=jobs[i].pose.sequence[2] == "solver", **options)
-            results[i], carried[i] = res, warm
+                    bar.update(1)
+        finally:  # also on Ctrl-C: end the bar's line, so that what follows starts on its own
             if bar is not None:
-                bar.update(1)
-        if bar is not None:
-            bar.close()
+                bar.close()
         return [results[i] for i in range(n)]
 
     def _refuse_penetrating_poses(self, state: BodyState, body, labels: list[str]) -> None:

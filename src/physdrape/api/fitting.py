@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from physdrape.api.placement import check_extent, check_scale, unit_scale
 from physdrape.api.types import DrapeError, FitResult
 
 
@@ -73,11 +74,12 @@ def _align_to_body(verts: np.ndarray, body, *, scale: float = 1.0) -> np.ndarray
 
 
 def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, iters: int = 20,
-                time_budget_s: float = 60.0, body=None) -> FitResult:
+                time_budget_s: float = 60.0, units: str = "m", body=None) -> FitResult:
     """Place a garment authored for another body onto the canonical Anny body.
 
-    An .mhclo is refit through its MakeHuman binding (exact); an .obj/.ply (metres, y-up) is
-    scaled by `scale` and translated onto the body (`_align_to_body`), pushed out of the body, then
+    An .mhclo is refit through its MakeHuman binding (exact; `units` does not apply); an .obj/.ply (y-up, in `units`:
+    "m", "dm", "cm" or "mm", converted to metres) is scaled by `scale` (a factor near 1 for a
+    garment made for a larger or smaller body, not a unit conversion) and translated onto the body (`_align_to_body`), pushed out of the body, then
     relaxed with the physics oracle (`physics.relax`, the garment's own aligned shape as rest
     state, gravity and body contact, at most `iters` Newton iterations) and validated as a
     template (`garments.validate_garment`: no self-intersections, >= 2 mm body clearance).
@@ -111,9 +113,8 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         body = get_anny_body()
     canonical = body.canonical_verts(dtype=torch.float64)
     faces_b = body.faces
-    if not 0.2 <= scale <= 5.0:
-        raise DrapeError(f"scale {scale:g} is implausible for a garment in metres: give a factor near 1 "
-                         "(convert units first: 0.01 for cm, 0.1 for dm)")
+    unit_scale(units)
+    check_scale(scale)
     shift = np.zeros(3)
     bv, bf = canonical.numpy(), faces_b.numpy()
     raw = None
@@ -124,12 +125,11 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         verts, _ = resolve_body_penetration(verts, faces, bv, bf, margin=2e-3)
     else:
         verts, faces = read_mesh(path)
+        verts = verts * unit_scale(units)
         name = path.stem
+        check_extent(path.name, verts[np.unique(faces)] if faces.min() >= 0 and faces.max() < len(verts) else verts,
+                     units)
         check_mesh(verts, faces, name=path.name)
-        extent = float(np.ptp(verts, axis=0).max())
-        if extent > 3.0:
-            raise DrapeError(f"{path.name} is {extent:.3g} units across: PhysDrape needs metres "
-                             "(scale it by 0.01 for cm, 0.1 for dm, 0.001 for mm)")
         pre = validate_garment(verts, faces, name=path.name, body=False, check_self_intersections=False,
                                require_clearance=False)
         topo = [e for e in pre.errors if "non-manifold" in e or "more than two faces" in e]
@@ -172,4 +172,4 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         stats["displacement_from_refit_m"] = {"max": float(disp.max()), "mean": float(disp.mean())}
     report = validate_garment(verts, faces, name=name, body=(bv, bf), margin=2e-3, require_clearance=True)
     return FitResult(name=name, verts=verts, faces=faces, scale=float(scale), translation=[float(v) for v in shift],
-                     relax=stats, validation=str(report), ok=report.ok)
+                     relax=stats, validation=str(report), ok=report.ok, units=units)

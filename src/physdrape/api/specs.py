@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from physdrape.api.placement import check_extent, unit_scale
 from physdrape.api.types import DrapeError, Motion
 from physdrape.geometry.mesh import MeshError, check_mesh
 from physdrape.physics.material import Material
@@ -25,8 +26,6 @@ _GENERATED = re.compile(rf"^({'|'.join(GARMENT_CATEGORIES)}):(\d+)$")
 _RANDOM_POSE = re.compile(r"^random:(\d+)$")
 #: The pose used when none is given: a natural standing pose with the arms off the torso.
 DEFAULT_POSE = "relaxed"
-#: A garment wider than this [m] is not in metres.
-MAX_GARMENT_EXTENT = 3.0
 
 
 @dataclass(frozen=True)
@@ -47,35 +46,41 @@ def is_generated(text: str) -> bool:
     return bool(_GENERATED.match(text))
 
 
-def template_from_mesh(name: str, verts, faces) -> Template:
-    """A template from a user's mesh, refused (MeshError / DrapeError) when malformed or not in metres."""
-    v = np.asarray(verts.detach().cpu() if isinstance(verts, Tensor) else verts, dtype=np.float64)
+def template_from_mesh(name: str, verts, faces, *, units: str = "m") -> Template:
+    """A template from a user's mesh in `units` (converted to metres), refused (MeshError /
+    DrapeError) when malformed or when its size says it is in another unit."""
+    scale = unit_scale(units)
+    v = np.asarray(verts.detach().cpu() if isinstance(verts, Tensor) else verts, dtype=np.float64) * scale
     f = np.asarray(faces.detach().cpu() if isinstance(faces, Tensor) else faces)
+    if v.ndim == 2 and v.shape[1] == 3 and np.isfinite(v).all():
+        indices_ok = (f.ndim == 2 and f.size and np.issubdtype(f.dtype, np.integer) and f.min() >= 0
+                      and f.max() < len(v))
+        check_extent(name, v[np.unique(f)] if indices_ok else v, units)
     check_mesh(v, f, name=name)
-    extent = float(np.ptp(v, axis=0).max())
-    if extent > MAX_GARMENT_EXTENT:
-        raise DrapeError(f"garment {name!r} is {extent:.3g} units across: PhysDrape needs metres "
-                         "(scale by 0.01 for cm, 0.1 for dm, 0.001 for mm)")
     return Template.from_mesh(v, f, name=name)
 
 
-def garment_template(spec, *, smpl: bool = False) -> Template:
+def garment_template(spec, *, smpl: bool = False, units: str = "m") -> Template:
     """A template from a garment spec: "default", "CATEGORY:SEED", a path (.obj/.ply/.mhclo), a
-    (verts (V, 3) [m], faces (F, 3)) pair, or an object with ``.verts``/``.faces``. smpl: the
-    Draper drapes on SMPL, where only garment files authored on SMPL's canonical body fit."""
+    (verts (V, 3), faces (F, 3)) pair, or an object with ``.verts``/``.faces``. smpl: the
+    Draper drapes on SMPL, where only garment files authored on SMPL's canonical body fit.
+    units: the unit of .obj/.ply files and of user meshes ("m", "dm", "cm", "mm"; converted to
+    metres); the bundled and generated garments are in metres and an .mhclo is placed through its
+    binding to the body, so neither is scaled."""
+    unit_scale(units)
     if isinstance(spec, (str, Path)):
-        return _template_from_text(str(spec), smpl=smpl)
+        return _template_from_text(str(spec), smpl=smpl, units=units)
     if isinstance(spec, Template):
         return spec
     if isinstance(spec, tuple) and len(spec) == 2:
-        return template_from_mesh("garment", *spec)
+        return template_from_mesh("garment", *spec, units=units)
     if hasattr(spec, "verts") and hasattr(spec, "faces"):
-        return template_from_mesh(str(getattr(spec, "name", "garment")), spec.verts, spec.faces)
+        return template_from_mesh(str(getattr(spec, "name", "garment")), spec.verts, spec.faces, units=units)
     raise DrapeError(f"cannot interpret garment {type(spec).__name__}: give a path, 'default', CATEGORY:SEED, "
                      "a (verts, faces) pair or an object with .verts and .faces")
 
 
-def _template_from_text(text: str, *, smpl: bool) -> Template:
+def _template_from_text(text: str, *, smpl: bool, units: str) -> Template:
     if smpl and (text == "default" or _GENERATED.match(text) or text.lower().endswith(".mhclo")):
         raise DrapeError(
             f"garment {text!r} is made for the Anny body and does not fit SMPL: with an SMPL body, give a "
@@ -103,9 +108,7 @@ def _template_from_text(text: str, *, smpl: bool) -> Template:
 
             g = load_mhclo(path)
         elif suffix in (".obj", ".ply"):
-            from physdrape.garments import load_template
-
-            g = load_template(path)
+            return _template_from_file(path, units)
         else:
             raise DrapeError(f"garment file {path} has an unsupported extension {suffix!r}: use .obj, .ply "
                              "(metres, y-up, on the canonical body) or .mhclo")
@@ -114,6 +117,20 @@ def _template_from_text(text: str, *, smpl: bool) -> Template:
         raise
     except (OSError, ValueError) as exc:
         raise DrapeError(f"cannot load garment {text!r}: {exc}") from None
+
+
+def _template_from_file(path: Path, units: str) -> Template:
+    """An .obj/.ply template read in `units`, converted to metres and validated as
+    `garments.load_template` does (topology, triangles, self-intersections, at most 5 % of its
+    area inside the canonical body)."""
+    from physdrape.garments import validate_garment
+    from physdrape.geometry.mesh import read_mesh
+
+    verts, faces = read_mesh(path)
+    template = template_from_mesh(path.stem, verts, faces, units=units)
+    validate_garment(template.verts, template.faces, name=path.name, require_clearance=False,
+                     max_inside_area_fraction=0.05).raise_if_failed()
+    return template
 
 
 def _mesh(garment) -> tuple[np.ndarray, np.ndarray]:

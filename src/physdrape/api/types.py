@@ -16,6 +16,10 @@ class DrapeError(ValueError):
     """Bad input to the draping API; the message says what was wrong and how to fix it."""
 
 
+class DrapeWarning(UserWarning):
+    """Input the API drapes as asked although it is likely wrong (e.g. ``allow_detached=True``)."""
+
+
 @dataclass(frozen=True)
 class Motion:
     """Frames of a motion used as poses.
@@ -131,7 +135,8 @@ class DrapeResult:
 @dataclass
 class FitResult:
     """A garment placed on the canonical body: verts [m] (V, 3), faces (F, 3), the alignment
-    (uniform scale, translation [m]), relaxation stats, and the validation report (text, ok)."""
+    (uniform scale, translation [m]), relaxation stats, the validation report (text, ok), and the
+    unit the input file was read in (the result is in metres)."""
 
     name: str
     verts: np.ndarray
@@ -141,8 +146,9 @@ class FitResult:
     relax: dict[str, Any]
     validation: str
     ok: bool
+    units: str = "m"
 
     def report(self) -> dict[str, Any]:
         return {"garment": self.name, "num_verts": len(self.verts), "num_faces": len(self.faces),
-                "scale": self.scale, "translation_m": self.translation, "relax": self.relax,
+                "units": self.units, "scale": self.scale, "translation_m": self.translation, "relax": self.relax,
                 "valid": self.ok, "validation": self.validation}
