@@ -8,11 +8,9 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import shutil
 import sys
-import tempfile
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -20,8 +18,9 @@ import numpy as np
 import torch
 
 from physdrape import __version__
-from physdrape.api import GARMENT_CATEGORIES, Draper, Motion
-from physdrape.cli.common import CLIError, check_out_dir, safe_name
+from physdrape.api import GARMENT_CATEGORIES, Draper, DrapeWarning, Motion
+from physdrape.api.placement import UNITS
+from physdrape.cli.common import CLIError, check_out_dir, commit_directory, safe_name, staged_directory
 
 DRAPE_EPILOG = """\
 examples:
@@ -30,8 +29,10 @@ examples:
   physdrape drape --garment shirt.obj --garment tshirt:7 --out out/ --force --figures
   physdrape drape --bvh walk.bvh --frames 0:8 --out walk/
   physdrape drape --smpl-model SMPL_NEUTRAL.npz --garment smpl_shirt.obj --betas 1.2,-0.5 --amass seq.npz --frames 0:10
-outputs (in --out): garment.obj/.ply, body.obj/.ply, drape.glb, render.png, report.json
-  (several garments or frames: one numbered sub-directory each, one report.json);
+outputs (in --out, metres whatever --units): garment.obj/.ply, body.obj/.ply, drape.glb, render.png,
+  report.json (docs/report.md: every field) (several garments or frames: one numbered sub-directory
+  each, one report.json). --force replaces an existing --out as a whole, once the new run is
+  complete; Ctrl-C leaves --out as it was.
   --figures adds residual.png (force heatmap, penetrating faces red), convergence.png
   (energy and force per solver step), materials.png (silk -> leather sweep of the first garment)
   and gallery.png (the four tiled).
@@ -145,8 +146,9 @@ def _pose_spec(args):
     return args.pose
 
 
-def _material(args):
-    """The API's material: the --material preset with any --mu/--lam/--k-bend/--density override."""
+def _material(args, notes: list[str]):
+    """The API's material: the --material preset with any --mu/--lam/--k-bend/--density override
+    (values outside the trained ranges are warned about and added to `notes`)."""
     from physdrape.physics.presets import out_of_range
 
     material = Draper.material(args.material)
@@ -158,7 +160,8 @@ def _material(args):
     if overrides:
         material = replace(material, **overrides)
         for note in out_of_range(material):
-            print(f"physdrape: warning: {note}; the model was trained only inside these ranges", file=sys.stderr)
+            notes.append(f"{note}; the model was trained only inside these ranges")
+            print(f"physdrape: warning: {notes[-1]}", file=sys.stderr)
     return material
 
 
@@ -192,6 +195,31 @@ def _shape(args):
     return _parse_shape(args.shape)
 
 
+def _output_dir(args) -> Path:
+    """--out as a path (a symbolic link to a folder: that folder, which is replaced in place)."""
+    out = Path(args.out).expanduser()
+    return out.resolve() if out.is_symlink() else out
+
+
+def _interrupted(args, argv) -> str:
+    out = _output_dir(args)
+    return f"nothing was written to {out}" + ("; its earlier contents are unchanged" if out.exists() else "")
+
+
+def _drape_noting_warnings(notes: list[str], fn, *a, **kw):
+    """`fn(*a, **kw)`, its `DrapeWarning`s printed as `physdrape: warning:` lines and added to `notes`."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DrapeWarning)
+        result = fn(*a, **kw)
+    for w in caught:
+        if not issubclass(w.category, DrapeWarning):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        elif str(w.message) not in notes:
+            notes.append(str(w.message))
+            print(f"physdrape: warning: {w.message}", file=sys.stderr)
+    return result
+
+
 def cmd_drape(args: argparse.Namespace) -> int:
     """Drape garments with the public API and write meshes, pictures and report.json."""
     from physdrape.export import save_result, write_json
@@ -202,20 +230,23 @@ def cmd_drape(args: argparse.Namespace) -> int:
     # 1. the command line's own checks, before any work or any write
     if not 32 <= args.render_size <= 4096:
         raise CLIError(f"--render-size must be in [32, 4096] pixels, got {args.render_size}")
-    out = Path(args.out).expanduser()
-    check_out_dir(out, args.force)
+    out = _output_dir(args)
+    check_out_dir(out, args.force, replaces="report.json")
     smpl = args.smpl_model is not None
     shape, pose, garments = _shape(args), _pose_spec(args), _garment_specs(args)
-    material = _material(args)
+    notes: list[str] = []
+    material = _material(args, notes)
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    # 2. drape (the API validates garments, bodies, poses and the checkpoint)
+    # 2. drape (the API validates garments, units, placement, bodies, poses and the checkpoint)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender)
-    results = draper.drape(garments, shape=shape, pose=pose, material=material, refine=args.refine,
-                           keep_trace=args.figures, batch_size=args.batch_size,
-                           progress=len(garments) > 1 or isinstance(pose, Motion) and not isinstance(pose.frames, int))
+    common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached}
+    results = _drape_noting_warnings(
+        notes, draper.drape, garments, pose=pose, material=material, refine=args.refine, keep_trace=args.figures,
+        batch_size=args.batch_size,
+        progress=len(garments) > 1 or isinstance(pose, Motion) and not isinstance(pose.frames, int), **common)
     sweep = None
     if args.figures:
         if isinstance(pose, Motion):
@@ -224,14 +255,11 @@ def cmd_drape(args: argparse.Namespace) -> int:
             first_pose = draper.poses(pose)[0].pose[0].numpy()
         else:
             first_pose = pose
-        sweep = draper.drape(garments[0], shape=shape, pose=first_pose, material=list(MATERIAL_PRESETS.values()))
+        sweep = _drape_noting_warnings(notes, draper.drape, garments[0], pose=first_pose,
+                                       material=list(MATERIAL_PRESETS.values()), **common)
 
-    # 3. write everything into a temporary directory beside --out, then move the files in
-    parent = out.parent if out.parent.exists() else None
-    if parent is None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    # 3. write everything into a temporary folder beside --out, then put it in place as a whole
+    with staged_directory(out) as tmp:
         reports = []
         for k, res in enumerate(results):
             sub = tmp if len(results) == 1 else tmp / f"{k:03d}_{safe_name(res.name)}_{safe_name(res.pose)}"
@@ -256,19 +284,14 @@ def cmd_drape(args: argparse.Namespace) -> int:
             "refine": bool(args.refine),
             "shape": (shape or {}) if not smpl else {"betas": shape or "from the AMASS file or 0"},
             "body": "smpl" if smpl else "anny",
+            "units": args.units,
+            "warnings": notes,
             "num_results": len(results),
             "wall_time_s": wall,
             "results": reports,
         }
         write_json(tmp / "report.json", report)
-        out.mkdir(parents=True, exist_ok=True)
-        for path in sorted(tmp.rglob("*")):
-            if path.is_file():
-                dest = out / path.relative_to(tmp)
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(path, dest)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        commit_directory(tmp, out, force=args.force, replaces="report.json")
     for r in reports:
         print(f"{r['garment']} [{r['pose']}]: E_strain {r['E_strain_J']:.4g} J, E_bend {r['E_bend_J']:.4g} J, "
               f"B2G {r['B2G_percent']:.3g} %, residual {r['residual_force_N']:.3g} N")
@@ -289,6 +312,10 @@ def add_parser(sub) -> None:
                    help="garment on the canonical body: .obj/.ply (metres, y-up) or .mhclo; repeat for a batch")
     g.add_argument("--category", help="generate a garment: tshirt, longsleeve, tanktop or croptop")
     g.add_argument("--seed", type=int, help="seed of the generated garment (with --category; default 0)")
+    g.add_argument("--units", choices=tuple(UNITS), default="m", help="unit of --garment .obj/.ply files "
+                   "(default m); they are converted to metres, and so are the outputs")
+    g.add_argument("--allow-detached", action="store_true", help="drape a garment that neither touches nor "
+                   "surrounds the canonical body (a warning instead of an error)")
     b = drape.add_argument_group("body")
     b.add_argument("--shape", metavar="NAME=V,...", help="Anny phenotypes in [0, 1] (gender, age, muscle, weight, "
                    "height, proportions; missing ones 0.5), e.g. gender=0.2,weight=0.8")
@@ -325,9 +352,10 @@ def add_parser(sub) -> None:
     r.add_argument("--refine", action="store_true", help="polish with the physics oracle (projected Newton, slow)")
     r.add_argument("--batch-size", type=int, default=8, help="garments per model call (default 8)")
     r.add_argument("--out", default="physdrape_out", help="output directory (default ./physdrape_out)")
-    r.add_argument("--force", action="store_true", help="overwrite files in a non-empty --out")
+    r.add_argument("--force", action="store_true", help="replace an earlier run's --out (it holds report.json) "
+                   "as a whole, once the new run is complete")
     r.add_argument("--figures", action="store_true", help="also write residual.png, convergence.png, materials.png, "
                    "gallery.png")
     r.add_argument("--render-size", type=int, default=640, help="height of the pictures [px] (default 640)")
     r.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
-    drape.set_defaults(func=cmd_drape)
+    drape.set_defaults(func=cmd_drape, interrupted=_interrupted)

@@ -6,7 +6,7 @@ import argparse
 import shlex
 import sys
 
-from physdrape.cli.common import CLIError
+from physdrape.cli.common import CLIError, deferred_interrupt
 
 
 def _ablation_pair(text: str) -> tuple[str, str]:
@@ -37,7 +37,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     command = shlex.join(["physdrape", *sys.argv[1:]])
     results = evaluate(args.checkpoint, config, ablation=ablation, command=command,
                        log=lambda msg: print(msg, file=sys.stderr))
-    json_path, md_path = write_results(results, args.out)
+    with deferred_interrupt(f"{args.out} was written in full before stopping"):  # eval.json with eval.md
+        json_path, md_path = write_results(results, args.out)
     print(render_markdown(results))
     print(f"wrote {json_path} and {md_path}", file=sys.stderr)
     return 0
@@ -66,5 +67,5 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--dtype", choices=("float32", "float64"), default=None,
                    help="dtype of the garments, bodies and physics (default: the API's, float32)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (0: torch's default)")
-    p.set_defaults(func=cmd_eval)
+    p.set_defaults(func=cmd_eval, interrupted=lambda args, argv: f"nothing was written to {args.out}")
     return p

@@ -8,7 +8,8 @@ import sys
 import time
 from pathlib import Path
 
-from physdrape.cli.common import CLIError, check_out_dir
+from physdrape.api.placement import UNITS
+from physdrape.cli.common import CLIError, check_out_dir, deferred_interrupt
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -28,7 +29,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise CLIError(f"--iters must be >= 0, got {args.iters}")
     t0 = time.perf_counter()
     result = fit_garment(args.garment, align=not args.no_align, scale=args.scale, iters=args.iters,
-                         time_budget_s=args.time_budget)
+                         time_budget_s=args.time_budget, units=args.units)
     report = result.report()
     report["wall_time_s"] = time.perf_counter() - t0
     print(json.dumps(report, indent=2))
@@ -37,21 +38,29 @@ def cmd_fit(args: argparse.Namespace) -> int:
             raise CLIError(f"the fitted garment failed validation (nothing written; --keep-invalid writes it "
                            f"anyway):\n{result.validation}")
         print("physdrape: warning: writing a garment that failed validation (--keep-invalid)", file=sys.stderr)
-    write_mesh(out, result.verts, result.faces)  # atomic
+    with deferred_interrupt(f"{out} was written in full before stopping"):
+        write_mesh(out, result.verts, result.faces)  # atomic
     print(f"wrote {out}")
     return 0
+
+
+def _interrupted(args, argv) -> str:
+    out = Path(args.out).expanduser()
+    return f"nothing was written to {out}" + ("; the earlier file is unchanged" if out.exists() else "")
 
 
 def add_parser(sub) -> None:
     """The `fit` subcommand."""
     fit = sub.add_parser("fit", help="place a garment authored for another body onto the canonical body")
-    fit.add_argument("garment", help="an .obj/.ply in metres (y-up) or a MakeHuman .mhclo")
-    fit.add_argument("--out", required=True, help="the fitted template (.obj or .ply)")
+    fit.add_argument("garment", help="an .obj/.ply (y-up, in --units) or a MakeHuman .mhclo")
+    fit.add_argument("--out", required=True, help="the fitted template (.obj or .ply, in metres)")
+    fit.add_argument("--units", choices=tuple(UNITS), default="m", help="unit of an .obj/.ply garment (default m); "
+                     "it is converted to metres")
     fit.add_argument("--force", action="store_true", help="overwrite --out")
     fit.add_argument("--iters", type=int, default=20, help="physics relaxation iterations (0: align only)")
     fit.add_argument("--time-budget", type=float, default=120.0, help="relaxation wall-time budget [s]")
-    fit.add_argument("--scale", type=float, default=1.0, help="uniform scale applied first (e.g. 0.95 for a garment "
-                     "made for a taller body; default 1)")
+    fit.add_argument("--scale", type=float, default=1.0, help="uniform scale applied after --units, in [0.2, 5] (e.g. "
+                     "0.95 for a garment made for a taller body; default 1)")
     fit.add_argument("--no-align", action="store_true", help="skip the translation search")
     fit.add_argument("--keep-invalid", action="store_true", help="write the result even if validation fails")
-    fit.set_defaults(func=cmd_fit)
+    fit.set_defaults(func=cmd_fit, interrupted=_interrupted)

@@ -34,9 +34,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         trainer = Trainer(config, DrapeSource(config.data), args.run_dir)
         trainer.run(resume=args.resume)
-    finally:
         if distributed:
             dist.barrier()  # no rank tears gloo down while another still talks to it
+    finally:  # after an error or Ctrl-C the other ranks may be gone: no barrier then
+        if distributed:
             dist.destroy_process_group()
     return 0
 
@@ -60,6 +61,16 @@ def _train_recipe(args: argparse.Namespace) -> int:
     return 0
 
 
+def _interrupted(args, argv) -> str:
+    """Where the run stands and the command that continues it."""
+    import shlex
+
+    again = argv if "--resume" in argv else [*argv, "--resume"]
+    command = (f"physdrape {shlex.join(again)}" if int(os.environ.get("WORLD_SIZE", "1")) == 1
+               else "the same torchrun command with --resume")
+    return f"the checkpoints saved so far are kept in {args.run_dir}; resume with: {command}"
+
+
 def add_parser(sub) -> None:
     """The `train` subcommand."""
     train = sub.add_parser("train", help="train a PhysDrape model (self-supervised, resumable)")
@@ -70,4 +81,4 @@ def add_parser(sub) -> None:
     train.add_argument("--resume", action="store_true", help="continue from the run directory's latest checkpoint")
     train.add_argument("--steps", type=int, help="override optim.steps")
     train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
-    train.set_defaults(func=cmd_train)
+    train.set_defaults(func=cmd_train, interrupted=_interrupted)
