@@ -126,3 +126,17 @@ def test_a_large_garment_is_coarsened_further_to_keep_the_coarse_factor_small():
     assert topology.aggregates(edges, sheet.num_verts, 2).max() + 1 > MAX_PATCHES  # not vacuous
     coarse = CoarseSpace(Cloth.build(sheet))
     assert MAX_PATCHES / 5 < coarse.num_patches <= MAX_PATCHES
+
+
+def test_a_lone_free_patch_factorises():
+    """A single triangle at rest, out of contact, has no coarse stiffness at all (its one patch
+    moves rigidly at no cost): the factor still exists and the correction is finite."""
+    tri = Garment.from_mesh(np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0]]), np.array([[0, 1, 2]]),
+                            name="triangle", dtype=torch.float64)
+    batch = GarmentBatch.pack([tri])
+    cloth = Cloth.build(batch)
+    coarse = CoarseSpace(cloth, levels=2, smoothing=2)
+    coarse.factor(batch.rest.clone(), None)
+    force = torch.tensor([[0.0, -1e-3, 0.0]] * 3, dtype=torch.float64)
+    correction = coarse.solve(force)
+    assert torch.isfinite(correction).all() and float((correction * force).sum()) > 0  # a descent direction

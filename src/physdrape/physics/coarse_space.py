@@ -71,10 +71,15 @@ def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smooth
 
 def _regularized_cholesky(block: Tensor) -> Tensor:
     """Cholesky factor of block + r·mean(diag)·I, r = REGULARIZATION, raised ×100 until it factorises
-    (a float32 K rounds its near-null rigid modes to slightly negative)."""
+    (a float32 K rounds its near-null rigid modes to slightly negative). A block without stiffness
+    (a garment of one patch, free of the body, moves rigidly at no cost) is regularised with
+    mean(diag) = 1: its correction is then a long rigid move that the solver's step clip and line
+    search shorten like any other."""
     if not bool(torch.isfinite(block).all()):
         raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
-    scale = block.diagonal().mean().clamp_min(1e-300)
+    scale = block.diagonal().mean()
+    if not bool(scale > 0):  # no stiffness at all (a lone patch moving freely): any scale regularises it
+        scale = torch.ones((), dtype=block.dtype)
     eye = torch.eye(block.shape[0], dtype=block.dtype)
     for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
         chol, info = torch.linalg.cholesky_ex(block + REGULARIZATION * 100.0 ** attempt * scale * eye)
