@@ -274,8 +274,11 @@ def cmd_drape(args: argparse.Namespace) -> int:
         if sweep is not None:
             material_sweep_figure(sweep, list(MATERIAL_PRESETS), tmp / "materials.png", size=args.render_size)
             first = tmp if len(results) == 1 else tmp / reports[0]["directory"]
+            batch = [] if len(results) == 1 else [tmp / r["directory"] / "render.png" for r in reports]
             compose_gallery([first / "render.png", first / "residual.png", first / "convergence.png",
-                             tmp / "materials.png"], tmp / "gallery.png", columns=2)
+                             tmp / "materials.png"], tmp / "gallery.png", columns=3,
+                            heading=None if not batch else f"first garment: {results[0].name} [{results[0].pose}]",
+                            batch=batch, batch_captions=[f"{r.name} [{r.pose}]" for r in results] if batch else ())
         wall = time.perf_counter() - t_start
         report = {
             "physdrape_version": __version__,

@@ -1,0 +1,144 @@
+"""The pictures: head-to-feet front and back renders, a colour per fabric, readable material captions,
+and a batch gallery with one tile per garment. A synthetic body (a standing capsule, feet at y = 0) and
+an open tube as the garment keep every render tiny and fast."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from itertools import combinations
+from types import SimpleNamespace
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from physdrape.physics.material import Material
+from physdrape.physics.presets import MATERIAL_PRESETS
+from physdrape.render import FABRIC_RGB, compose_gallery, fabric_color, material_sweep_figure, render_result
+from physdrape.render.colors import stiffness_coordinate
+from physdrape.render.figures import PAD
+from physdrape.render.layout import text_width
+
+HEIGHT = 1.7  # body height [m]
+
+
+def _tube(radius: float, y0: float, y1: float, *, segments: int = 24, rings: int = 6):
+    """An open cylinder about the y axis: verts (V, 3), faces (F, 3)."""
+    t = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    ys = np.linspace(y0, y1, rings)
+    verts = np.array([[radius * np.cos(a), y, radius * np.sin(a)] for y in ys for a in t])
+    faces = []
+    for r in range(rings - 1):
+        for s in range(segments):
+            a, b = r * segments + s, r * segments + (s + 1) % segments
+            faces += [[a, b + segments, b], [a, a + segments, b + segments]]
+    return verts, np.array(faces)
+
+
+def _result(material: Material = MATERIAL_PRESETS["cotton"], name: str = "tube", pose: str = "stand"):
+    import trimesh
+
+    body = trimesh.creation.capsule(height=HEIGHT - 0.3, radius=0.15, count=[16, 16])
+    body.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
+    body.apply_translation([0.0, HEIGHT / 2, 0.0])  # standing, feet at y = 0, head at y = HEIGHT
+    verts, faces = _tube(0.2, 0.8, 1.4)
+    return SimpleNamespace(
+        name=name, pose=pose, verts=verts, faces=faces, body_verts=np.asarray(body.vertices),
+        body_faces=np.asarray(body.faces), material=material, vertex_residual=np.full(len(verts), 0.1),
+        inside_faces=np.zeros(len(faces), bool),
+        metrics={"strain": 1e-3, "bend": 2e-4, "b2g_percent": 0.0, "mean_y": 1.1})
+
+
+def _content(img: np.ndarray) -> np.ndarray:
+    """Mask of the pixels that are not white background, (H, W) bool."""
+    return (img[..., :3] < 0.97).any(-1)
+
+
+def test_body_bounds_are_as_built():
+    res = _result()
+    assert res.body_verts[:, 1].min() == pytest.approx(0.0, abs=1e-6)
+    assert res.body_verts[:, 1].max() == pytest.approx(HEIGHT, abs=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["shaded", "residual"])
+def test_render_shows_head_to_feet_front_and_back(tmp_path, mode):
+    size = 96
+    img = mpimg.imread(render_result(_result(), tmp_path / "r.png", size=size, mode=mode))
+    height = img.shape[0]
+    view = _content(img[height - PAD - size:height - PAD])  # the views' band: `size` px above the margin
+    rows = np.flatnonzero(view.any(1))
+    assert rows[0] > 0 and rows[-1] < size - 1, "head or feet touch the view's edge (cut off)"
+    assert rows[-1] - rows[0] > 0.85 * size, "the body should fill the view from head to feet"
+    cols = np.flatnonzero(view[: size // 2].any(0))  # above the legs: one torso per view
+    runs = 1 + np.count_nonzero(np.diff(cols) > 1)
+    assert runs >= 2, "a front and a back view side by side"
+
+
+def test_each_preset_has_its_own_stable_colour():
+    colours = {name: fabric_color(m) for name, m in MATERIAL_PRESETS.items()}
+    assert set(colours) == set(FABRIC_RGB)
+    for a, b in combinations(colours, 2):
+        assert np.abs(colours[a] - colours[b]).max() > 0.15, f"{a} and {b} look alike"
+    np.testing.assert_array_equal(fabric_color(Material()), colours["cotton"])  # equal material, same colour
+
+
+def test_custom_material_colour_follows_its_stiffness():
+    cotton, denim = MATERIAL_PRESETS["cotton"], MATERIAL_PRESETS["denim"]
+    between = replace(cotton, k_bend=1e-4, density=0.3)
+    assert stiffness_coordinate(cotton) < stiffness_coordinate(between) < stiffness_coordinate(denim)
+    colour = fabric_color(between)
+    ends = np.stack([fabric_color(cotton), fabric_color(denim)])
+    lo, hi = ends.min(0), ends.max(0)
+    assert np.all(colour >= lo - 1e-12) and np.all(colour <= hi + 1e-12)
+    assert not np.allclose(colour, fabric_color(cotton)) and not np.allclose(colour, fabric_color(denim))
+    np.testing.assert_array_equal(colour, fabric_color(replace(cotton, k_bend=1e-4, density=0.3)))
+    extreme = Material(mu=1e9, lam=1e9, k_bend=1.0, density=5.0)  # far outside: clipped to leather's end
+    np.testing.assert_allclose(fabric_color(extreme), FABRIC_RGB["leather"])
+
+
+def _chroma(rgb: np.ndarray) -> np.ndarray:
+    """Colour without brightness (shading scales all channels alike)."""
+    return rgb / rgb.sum(-1, keepdims=True)
+
+
+def test_two_presets_render_in_their_fabric_colours(tmp_path):
+    size = 64
+    views = []
+    for name in ("silk", "leather"):
+        img = mpimg.imread(render_result(_result(MATERIAL_PRESETS[name]), tmp_path / f"{name}.png", size=size))
+        views.append(img[img.shape[0] - PAD - size:img.shape[0] - PAD, :, :3])  # below the captions
+    silk, leather = views
+    garment = np.abs(silk - leather).max(-1) > 0.2  # same body, same frame: only the garment differs
+    assert garment.sum() > 50
+    for img, name in ((silk, "silk"), (leather, "leather")):
+        mean = _chroma(img[garment]).mean(0)
+        own = np.abs(mean - _chroma(np.array(FABRIC_RGB[name]))).sum()
+        other = np.abs(mean - _chroma(np.array(FABRIC_RGB["leather" if name == "silk" else "silk"]))).sum()
+        assert own < 0.05 < other
+
+
+def test_material_captions_do_not_overlap(tmp_path):
+    results = [_result(m) for m in MATERIAL_PRESETS.values()]
+    path = material_sweep_figure(results, list(MATERIAL_PRESETS), tmp_path / "m.png", size=48)
+    width = mpimg.imread(path).shape[1]
+    widest = max(text_width(f"E_strain {1e-3:.3g} J · mean y 110.0 cm", 10.0), text_width("μ 63 kPa · λ 90 kPa", 10.0))
+    assert width >= len(results) * widest, "each panel is at least as wide as its captions"
+    with pytest.raises(ValueError, match="one label per result"):
+        material_sweep_figure(results, ["silk"], tmp_path / "x.png", size=48)
+
+
+def test_batch_gallery_has_a_tile_per_garment(tmp_path):
+    size = 40
+    renders = []
+    for k, material in enumerate(list(MATERIAL_PRESETS.values()) * 2):
+        renders.append(render_result(_result(material, name=f"g{k}"), tmp_path / f"r{k}.png", size=size))
+    details = [renders[0], renders[0]]
+    single = mpimg.imread(compose_gallery(details, tmp_path / "one.png"))
+    heights = []
+    for n in (1, 4, 5, 8):
+        path = compose_gallery(details, tmp_path / f"g{n}.png", heading="first garment: g0 [stand]",
+                               batch=renders[:n], batch_captions=[f"g{k} [stand]" for k in range(n)])
+        heights.append(mpimg.imread(path).shape[0])
+    assert single.shape[0] < heights[0] and single.shape[0] < heights[1] < heights[2] == heights[3]  # 4 a row
+    with pytest.raises(ValueError, match="one caption per batch picture"):
+        compose_gallery(details, tmp_path / "x.png", batch=renders[:2], batch_captions=["only one"])
