@@ -246,8 +246,9 @@ def compose_gallery(pictures: Sequence[str | os.PathLike], path: str | os.PathLi
                 k = r * cols + c
                 x = x0 + c * (cell_w + GAP)
                 caption = f"{k + 1}. {batch_captions[k]}" if batch_captions else f"{k + 1}."
-                canvas.text(x, y, _fit(caption, TITLE_PT, cell_w, bold=True), TITLE_PT, bold=True)
                 w, h = math.floor(im.shape[1] * scale), math.floor(im.shape[0] * scale)
-                canvas.image(im, x + (cell_w - w) // 2, y + cap_h, w, h)
+                x += (cell_w - w) // 2
+                canvas.text(x, y, _fit(caption, TITLE_PT, max(w, cell_w // 2), bold=True), TITLE_PT, bold=True)
+                canvas.image(im, x, y + cap_h, w, h)
             y += row_hs[r] + GAP
     return canvas.save(path)
