@@ -35,7 +35,7 @@ outputs (in --out, metres whatever --units): garment.obj/.ply, body.obj/.ply, dr
   complete; Ctrl-C leaves --out as it was.
   --figures adds residual.png (force heatmap, penetrating faces red), convergence.png
   (energy and force per solver step), materials.png (silk -> leather sweep of the first garment)
-  and gallery.png (the four tiled).
+  and gallery.png (the four tiled; for a batch also every garment's render).
 sequences (--bvh / --amass with --frames A:B): warm-started by default: frame A is draped by the
   model from its own kinematic initialisation; each later frame starts from the previous frame's
   drape carried along by the body's motion (per garment vertex: blended skinning transform of
@@ -359,6 +359,6 @@ def add_parser(sub) -> None:
                    "as a whole, once the new run is complete")
     r.add_argument("--figures", action="store_true", help="also write residual.png, convergence.png, materials.png, "
                    "gallery.png")
-    r.add_argument("--render-size", type=int, default=640, help="height of the pictures [px] (default 640)")
+    r.add_argument("--render-size", type=int, default=640, help="height of each body view in the pictures [px] (default 640)")
     r.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     drape.set_defaults(func=cmd_drape, interrupted=_interrupted)
