@@ -1,9 +1,12 @@
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
-from physdrape.garments import GarmentCategory, GarmentTemplate, load_split, make_split
+from physdrape.garments import GarmentCategory, GarmentTemplate, generate_valid_garment, load_split, make_split
+from physdrape.garments import split as split_module
+from physdrape.garments.io import sha256_file
 from physdrape.garments.split import main, split_entries
 
 pytestmark = pytest.mark.anny
@@ -47,3 +50,67 @@ def test_load_split_detects_changes(tmp_path, body):
         load_split(tmp_path, "test")
     with pytest.raises(FileNotFoundError, match="generate the split"):
         load_split(tmp_path / "nowhere", "test")
+
+
+def test_lazy_generation_makes_only_the_garments_asked_for_and_equals_the_full_split(tmp_path, tiny_split):
+    # The first 2 training garments of the protocol's 600/30 split, in 2 processes (the CLI path):
+    # exactly those files are made, byte for byte those of the tiny 2 + 2 split of the same seed.
+    lazy, full = tmp_path / "lazy", Path(tiny_split)
+    main(["--out", str(lazy), "--subset", "train", "--count", "2", "--workers", "2"])
+    assert sorted(_tree(lazy)) == ["manifest.json", "train/0000_tshirt.ply", "train/0001_longsleeve.ply"]
+    for name in ("train/0000_tshirt.ply", "train/0001_longsleeve.ply"):
+        assert sha256_file(lazy / name) == sha256_file(full / name), name
+    manifest, reference = (json.loads((d / "manifest.json").read_text()) for d in (lazy, full))
+    assert (manifest["num_train"], manifest["num_test"]) == (600, 30)
+    assert manifest["garments"] == [g for g in reference["garments"] if g["subset"] == "train"]
+    assert [g.name for g in load_split(lazy, "train", count=2)] == ["0000_tshirt", "0001_longsleeve"]
+    with pytest.raises(ValueError, match="holds 2 of the 600 train garments asked for"):
+        load_split(lazy, "train")  # the whole subset was not generated: the error says so
+    with pytest.raises(ValueError, match="holds 0 of the 1 test garments asked for .the split has 30"):
+        load_split(lazy, "test", count=1)
+
+
+def test_an_interrupted_generation_resumes_with_only_the_missing_garments(tmp_path, tiny_split, monkeypatch):
+    split = tmp_path / "split"
+    shutil.copytree(tiny_split, split)
+    reference = _tree(split)
+    manifest = json.loads((split / "manifest.json").read_text())
+    manifest["garments"] = [g for g in manifest["garments"] if g["subset"] == "train"]  # no test garments yet
+    (split / "manifest.json").write_text(json.dumps(manifest))
+    for ply in (split / "test").glob("*.ply"):
+        ply.unlink()
+    (split / "train" / "0001_longsleeve.ply").unlink()  # a file lost since
+    made = []
+
+    def counted(category, seed, **kwargs):
+        if len(made) == 2 and interrupt:
+            raise KeyboardInterrupt  # Ctrl-C while the third garment is being made
+        made.append(category)
+        return generate_valid_garment(category, seed, **kwargs)
+
+    monkeypatch.setattr(split_module, "generate_valid_garment", counted)
+    interrupt = True
+    with pytest.raises(KeyboardInterrupt):
+        make_split(split, seed=0, num_train=2, num_test=2, workers=1)
+    kept = json.loads((split / "manifest.json").read_text())["garments"]
+    assert made == ["longsleeve", "tshirt"]  # train 1, then test 0
+    assert [g["file"] for g in kept][-1] == "test/0000_tshirt.ply"  # recorded before Ctrl-C stopped it
+
+    interrupt = False
+    make_split(split, seed=0, num_train=2, num_test=2, workers=1)
+    assert made == ["longsleeve", "tshirt", "longsleeve"]  # only test 1 was left
+    assert _tree(split) == reference  # garments and manifest byte for byte
+    make_split(split, seed=0, num_train=2, num_test=2, workers=1)
+    assert len(made) == 3  # nothing left to make
+
+
+def test_a_split_directory_refuses_garments_of_another_split(tmp_path, tiny_split):
+    split = tmp_path / "split"
+    shutil.copytree(tiny_split, split)
+    with pytest.raises(ValueError, match="generate into another directory"):
+        make_split(split, seed=1, num_train=2, num_test=2)
+    with pytest.raises(ValueError, match="'num_train': 2"):
+        make_split(split, seed=0)  # the protocol's 600 / 30, but this directory is a 2 / 2 split
+    (split / "manifest.json").write_text('{"format": "physdrape-garment-split/1"}')
+    with pytest.raises(ValueError, match="format"):
+        load_split(split, "train")

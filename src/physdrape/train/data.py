@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from physdrape.body.model import BodyState
+from physdrape.garments.split import SPLIT_FORMAT, load_or_generate
 from physdrape.model import DrapeInput
 from physdrape.physics import Material
 from physdrape.pipeline import DrapePipeline, Job, Template
@@ -30,18 +31,17 @@ DENSITY_RANGE = (0.043, 0.7)  # kg/m², uniform
 
 def default_split_dir(seed: int = 0) -> Path:
     """Where the generated garment split is cached: ~/.cache/physdrape/garment_split_seed<seed>_v<format>."""
-    from physdrape.garments.split import SPLIT_FORMAT
-
     version = SPLIT_FORMAT.rsplit("/", 1)[-1]
     return Path.home() / ".cache" / "physdrape" / f"garment_split_seed{seed}_v{version}"
 
 
 @dataclass(frozen=True)
 class DataConfig:
-    """split_dir: garment split ("" = the default cache, generated on first use); split_seed: its
-    seed; subset: "train" or "test"; max_garments: use the first N (0 = all); body_pool_size:
-    posed bodies precomputed; body_seed: seed of their shapes and poses; materials: "sampled"
-    (HOOD's ranges) or "default"; dtype: of garments and bodies ("float32"/"float64")."""
+    """split_dir: garment split ("" = the default cache; garments are generated on first use, only
+    those read); split_seed: its seed; subset: "train" or "test"; max_garments: use the first N
+    (0 = all); body_pool_size: posed bodies precomputed; body_seed: seed of their shapes and
+    poses; materials: "sampled" (HOOD's ranges) or "default"; dtype: of garments and bodies
+    ("float32"/"float64")."""
 
     split_dir: str = ""
     split_seed: int = 0
@@ -57,6 +57,8 @@ class DataConfig:
             raise ValueError(f"DataConfig.materials must be 'sampled' or 'default', got {self.materials!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"DataConfig.dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.max_garments < 0:
+            raise ValueError(f"DataConfig.max_garments must be ≥ 0 (0 = the whole subset), got {self.max_garments}")
         if self.body_pool_size < 1:
             raise ValueError("DataConfig.body_pool_size must be ≥ 1")
 
@@ -107,17 +109,15 @@ class BodyPool:
                          rest_verts=self.rest_verts[rows], vertex_transforms=self.vertex_transforms[rows])
 
 
-def load_templates(config: DataConfig) -> list[Template]:
-    """The split's garments as templates (generating the split on first use)."""
-    from physdrape.garments.split import load_split, make_split
+def load_templates(config: DataConfig, *, workers: int | None = None) -> list[Template]:
+    """The first `max_garments` garments of the split's `subset` (0: all of it) as templates.
 
+    Only those garments are generated when missing (in `workers` processes, default one per CPU;
+    an interrupted generation resumes), so a small `max_garments` starts in seconds.
+    """
     split_dir = Path(config.split_dir).expanduser() if config.split_dir else default_split_dir(config.split_seed)
-    if not (split_dir / "manifest.json").is_file():
-        print(f"[physdrape] generating the garment split in {split_dir} (first use only)")
-        make_split(split_dir, seed=config.split_seed)
-    raw = load_split(split_dir, config.subset)
-    if config.max_garments:
-        raw = raw[: config.max_garments]
+    raw = load_or_generate(split_dir, config.subset, count=config.max_garments or None, seed=config.split_seed,
+                           workers=workers)
     return [Template.from_mesh(g.verts, g.faces, name=g.name) for g in raw]
 
 
