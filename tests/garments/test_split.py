@@ -1,5 +1,7 @@
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -114,3 +116,17 @@ def test_a_split_directory_refuses_garments_of_another_split(tmp_path, tiny_spli
     (split / "manifest.json").write_text('{"format": "physdrape-garment-split/1"}')
     with pytest.raises(ValueError, match="format"):
         load_split(split, "train")
+
+
+def test_garments_do_not_depend_on_the_callers_torch_threads(tmp_path):
+    # Two fresh processes, one and two torch threads, generate the same entry in one and two
+    # worker processes: the same bytes (the canonical body is built with one thread either way).
+    code = ("import sys, torch; torch.set_num_threads(int(sys.argv[1])); from physdrape.garments.split import "
+            "make_split; m = make_split(sys.argv[2], subset='test', count=1, workers=int(sys.argv[1])); "
+            "print(m['garments'][0]['sha256'])")
+    runs = [subprocess.Popen([sys.executable, "-c", code, str(n), str(tmp_path / str(n))], stdout=subprocess.PIPE,
+                             stderr=subprocess.DEVNULL, text=True) for n in (1, 2)]
+    digests = [run.communicate(timeout=120)[0].strip() for run in runs]
+    assert all(run.returncode == 0 for run in runs) and len(digests[0]) == 64
+    assert digests[0] == digests[1]
+    assert sha256_file(tmp_path / "2" / "test" / "0000_tshirt.ply") == digests[0]

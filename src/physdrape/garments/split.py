@@ -31,10 +31,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from physdrape.atomic import write_text
-from physdrape.garments.canonical import canonical_body
+from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
     GarmentTemplate,
@@ -77,10 +78,24 @@ def _file(entry: dict) -> str:
     return f"{entry['subset']}/{entry['index']:04d}_{entry['category']}.ply"
 
 
+def _body() -> CanonicalBody:
+    """The canonical body, built with one torch thread when this process has not built it yet:
+    Anny's forward pass sums in another order on more threads, and those last-bit differences
+    reach the garments' bytes, so the split would otherwise depend on the caller's thread count."""
+    if canonical_body.cache_info().currsize == 0:
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            canonical_body()
+        finally:
+            torch.set_num_threads(threads)
+    return canonical_body()
+
+
 def _make_one(job: tuple[dict, str, float]) -> dict:
     """Generate one entry's garment into out_dir; its manifest row."""
     entry, out_dir, target_edge = job
-    g, attempt = generate_valid_garment(entry["category"], entry["seed"], target_edge=target_edge)
+    g, attempt = generate_valid_garment(entry["category"], entry["seed"], target_edge=target_edge, body=_body())
     digest = write_ply(Path(out_dir) / _file(entry), g.verts, g.faces)
     return dict(
         entry, file=_file(entry), attempt=attempt, params=g.params.to_dict(), num_verts=g.num_verts,
@@ -170,7 +185,7 @@ def _runner(workers: int) -> Iterator:
         return
     method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
     if method == "fork":
-        canonical_body()  # built once here, shared by the forked workers
+        _body()  # built once here, shared by the forked workers
     with mp.get_context(method).Pool(workers, initializer=_ignore_sigint) as pool:
         yield lambda jobs: pool.imap_unordered(_make_one, jobs)
 
