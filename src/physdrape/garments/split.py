@@ -13,7 +13,8 @@ sha256), each file written atomically and recorded in the manifest (also written
 least once a second and whenever generation stops), so an interrupted generation resumes where it
 stopped; `load_or_generate` makes only the garments its caller reads. Processes generating into
 the same directory take turns (a lock on the directory). Re-running with the same seed reproduces
-every file byte for byte (same machine and library versions; see the manifest's `versions`).
+every file byte for byte (same machine and library versions; see the manifest's `versions`, and a
+garment's own `versions` where it was added under others), whatever the caller's torch threads.
 """
 
 from __future__ import annotations
