@@ -40,6 +40,7 @@ from physdrape.body.model import (
     vertex_face_table,
     vertex_normals,
 )
+from physdrape.progress import directory_size, slow_phase
 
 PHENOTYPE_NAMES: tuple[str, ...] = ("gender", "age", "muscle", "weight", "height", "proportions")
 """Order of the shape vector (B, 6), values in [0, 1]. gender 0 = male, 1 = female; age uses
@@ -102,7 +103,11 @@ def _load(rig: str, topology: str, surface_only: bool) -> _AnnyData:
         import anny
     except ImportError as e:  # pragma: no cover - anny is a hard dependency
         raise ImportError("the Anny body needs the `anny` package: pip install anny") from e
-    with _LOCK:
+    from anny.paths import get_anny_cache_path
+
+    cache = get_anny_cache_path()
+    with _LOCK, slow_phase(f"building the Anny body model (rig {rig}): once per machine and rig, about a minute; "
+                           f"it is cached in {cache}", done=lambda: f"the cache {cache} holds {directory_size(cache)}"):
         m = anny.Anny(rig=rig, topology=topology, local_changes="none", facial_actions="none")
     C = ANNY_TO_YUP
     dt = torch.float64

@@ -21,6 +21,7 @@ from physdrape import __version__
 from physdrape.api import GARMENT_CATEGORIES, Draper, DrapeWarning, Motion
 from physdrape.api.placement import UNITS
 from physdrape.cli.common import CLIError, check_out_dir, commit_directory, safe_name, staged_directory
+from physdrape.progress import slow_phase
 
 DRAPE_EPILOG = """\
 examples:
@@ -243,10 +244,12 @@ def cmd_drape(args: argparse.Namespace) -> int:
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender)
     common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached}
-    results = _drape_noting_warnings(
-        notes, draper.drape, garments, pose=pose, material=material, refine=args.refine, keep_trace=args.figures,
-        batch_size=args.batch_size,
-        progress=len(garments) > 1 or isinstance(pose, Motion) and not isinstance(pose.frames, int), **common)
+    what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
+    with slow_phase(what):
+        results = _drape_noting_warnings(
+            notes, draper.drape, garments, pose=pose, material=material, refine=args.refine, keep_trace=args.figures,
+            batch_size=args.batch_size,
+            progress=len(garments) > 1 or isinstance(pose, Motion) and not isinstance(pose.frames, int), **common)
     sweep = None
     if args.figures:
         if isinstance(pose, Motion):
@@ -255,11 +258,12 @@ def cmd_drape(args: argparse.Namespace) -> int:
             first_pose = draper.poses(pose)[0].pose[0].numpy()
         else:
             first_pose = pose
-        sweep = _drape_noting_warnings(notes, draper.drape, garments[0], pose=first_pose,
-                                       material=list(MATERIAL_PRESETS.values()), **common)
+        with slow_phase("draping the material sweep for --figures"):
+            sweep = _drape_noting_warnings(notes, draper.drape, garments[0], pose=first_pose,
+                                           material=list(MATERIAL_PRESETS.values()), **common)
 
     # 3. write everything into a temporary folder beside --out, then put it in place as a whole
-    with staged_directory(out) as tmp:
+    with staged_directory(out) as tmp, slow_phase(f"writing meshes and pictures into {out}"):
         reports = []
         for k, res in enumerate(results):
             sub = tmp if len(results) == 1 else tmp / f"{k:03d}_{safe_name(res.name)}_{safe_name(res.pose)}"

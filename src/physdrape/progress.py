@@ -1,0 +1,45 @@
+"""Telling the user about slow phases: a line on stderr when a phase has run for a few seconds,
+and one when it ends, so that no long operation is silent and no short one is noisy."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+#: A phase that runs longer than this [s] is announced.
+ANNOUNCE_AFTER_S = 5.0
+
+
+@contextlib.contextmanager
+def slow_phase(message: str, *, after: float = ANNOUNCE_AFTER_S, done: Callable[[], str] | None = None,
+               stream=None) -> Iterator[None]:
+    """Run the block; if it is still running after `after` seconds, print ``[physdrape] message``,
+    and when it ends ``[physdrape] ... done in T s`` (plus `done()`'s text, e.g. a cache size)."""
+    out = sys.stderr if stream is None else stream
+    announced = threading.Event()
+
+    def announce() -> None:
+        announced.set()
+        print(f"[physdrape] {message} ...", file=out, flush=True)
+
+    timer = threading.Timer(after, announce)
+    timer.daemon = True
+    start = time.perf_counter()
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        if announced.is_set():
+            extra = f"; {done()}" if done is not None else ""
+            print(f"[physdrape] ... done in {time.perf_counter() - start:.0f} s{extra}", file=out, flush=True)
+
+
+def directory_size(path) -> str:
+    """The total size of the files under `path`, e.g. "790 MB" (for cache messages)."""
+    total = sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
+    return f"{total / 1e6:.0f} MB" if total < 1e9 else f"{total / 1e9:.1f} GB"

@@ -1,0 +1,31 @@
+"""Slow phases are announced on stderr; fast ones are silent."""
+
+from __future__ import annotations
+
+import io
+import time
+
+from physdrape.progress import directory_size, slow_phase
+
+
+def test_a_slow_phase_says_what_it_does_and_when_it_ends():
+    out = io.StringIO()
+    with slow_phase("building something", after=0.01, done=lambda: "cache 3 MB", stream=out):
+        time.sleep(0.2)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "[physdrape] building something ..."
+    assert lines[1].startswith("[physdrape] ... done in ") and lines[1].endswith("; cache 3 MB")
+
+
+def test_a_fast_phase_is_silent():
+    out = io.StringIO()
+    with slow_phase("quick", after=5.0, stream=out):
+        pass
+    assert out.getvalue() == ""
+
+
+def test_directory_size(tmp_path):
+    (tmp_path / "a").write_bytes(b"x" * 2_000_000)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "b").write_bytes(b"x" * 1_000_000)
+    assert directory_size(tmp_path) == "3 MB"
