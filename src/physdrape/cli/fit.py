@@ -10,6 +10,7 @@ from pathlib import Path
 
 from physdrape.api.placement import UNITS
 from physdrape.cli.common import CLIError, check_out_dir, deferred_interrupt
+from physdrape.progress import slow_phase
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -28,8 +29,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.iters < 0:
         raise CLIError(f"--iters must be >= 0, got {args.iters}")
     t0 = time.perf_counter()
-    result = fit_garment(args.garment, align=not args.no_align, scale=args.scale, iters=args.iters,
-                         time_budget_s=args.time_budget, units=args.units)
+    with slow_phase(f"fitting {Path(args.garment).name}: placing it on the canonical body, untangling its layers"
+                    + (f", relaxing it with the physics oracle (at most {args.iters} iterations, "
+                       f"{args.time_budget:g} s)" if args.iters else "")):
+        result = fit_garment(args.garment, align=not args.no_align, scale=args.scale, iters=args.iters,
+                             time_budget_s=args.time_budget, units=args.units)
     report = result.report()
     report["wall_time_s"] = time.perf_counter() - t0
     print(json.dumps(report, indent=2))
