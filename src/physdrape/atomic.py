@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -49,21 +51,36 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
 
 @contextlib.contextmanager
 def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary directory beside `path`; on success it replaces `path` (an existing one
-    is removed first), on error it is removed. Files inside keep the modes they were written with."""
-    import shutil
-
+    """Yield a temporary directory beside `path`; on success it replaces `path` as a whole
+    (`replace_directory`), on error it is removed. Files inside keep the modes they were written with."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     try:
         yield tmp
-        tmp.chmod(0o777 & ~_umask())
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(tmp, path)
+        replace_directory(tmp, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def replace_directory(new: Path, path: Path) -> None:
+    """Put the finished folder `new` (beside `path`) in place of `path`: an existing `path` is
+    renamed aside, `new` renamed into place, then the old folder deleted, so that at every moment
+    `path` is either the old folder or the new one, never a mix. `new` gets the mode a plain
+    mkdir would give it (mkdtemp makes it private)."""
+    new.chmod(0o777 & ~_umask())
+    aside = None
+    if path.exists():
+        aside = path.parent / f".{path.name}.replaced-{uuid.uuid4().hex[:12]}"
+        os.rename(path, aside)
+    try:
+        os.rename(new, path)
+    except OSError:
+        if aside is not None:
+            os.rename(aside, path)
+        raise
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def _umask() -> int:

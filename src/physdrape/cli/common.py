@@ -9,9 +9,10 @@ import shutil
 import signal
 import tempfile
 import threading
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
+
+from physdrape.atomic import replace_directory
 
 
 class CLIError(ValueError):
@@ -71,12 +72,6 @@ def deferred_interrupt(note: str) -> Iterator[None]:
         raise KeyboardInterrupt(note)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 @contextlib.contextmanager
 def staged_directory(out: Path) -> Iterator[Path]:
     """A new temporary folder beside `out` to write a run's outputs into, then `commit_directory`
@@ -98,23 +93,12 @@ def staged_directory(out: Path) -> Iterator[Path]:
 def commit_directory(tmp: Path, out: Path, *, force: bool, replaces: str | None = None) -> None:
     """Put the finished folder `tmp` (beside `out`) in place of `out` as a whole.
 
-    An existing `out` is renamed aside, `tmp` renamed into place, then the old folder deleted: at
-    every moment `out` is either the earlier run's folder or this one's, never a mix. Ctrl-C is
-    held back until this is done. An existing non-empty `out` is refused as `check_out_dir` does."""
-    tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it private; the output gets the usual mode
+    `physdrape.atomic.replace_directory` swaps them, so at every moment `out` is either the
+    earlier run's folder or this one's, never a mix. Ctrl-C is held back until this is done. An
+    existing non-empty `out` is refused as `check_out_dir` does."""
     with deferred_interrupt(f"{out} was written in full before stopping"):
-        aside = None
         if out.exists() or out.is_symlink():
             if not out.is_dir() or out.is_symlink():
                 raise CLIError(f"--out {out} exists and is not a directory; choose another path")
             check_out_dir(out, force, replaces=replaces)
-            aside = out.parent / f".{out.name}.replaced-{uuid.uuid4().hex[:12]}"
-            os.rename(out, aside)
-        try:
-            os.rename(tmp, out)
-        except OSError:
-            if aside is not None:
-                os.rename(aside, out)
-            raise
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
+        replace_directory(tmp, out)
