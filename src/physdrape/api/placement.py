@@ -16,13 +16,12 @@ import numpy as np
 import torch
 
 from physdrape.api.types import DrapeError
+from physdrape.geometry.mesh import MAX_GARMENT_EXTENT_M
 from physdrape.geometry.proximity import BodySurface
 
 #: Metres per unit of each accepted `units`.
 UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001}
 UNIT_NAMES = {"m": "metres", "dm": "decimetres", "cm": "centimetres", "mm": "millimetres"}
-#: A garment wider than this [m] is not a garment in the unit it was read in.
-MAX_GARMENT_EXTENT = 3.0
 #: A garment read in dm, cm or mm and narrower than this [m] was read in too small a unit.
 MIN_GARMENT_EXTENT = 0.1
 #: The width [m] of a typical top or suit: the unit that brings a garment nearest to it is suggested.
@@ -60,11 +59,11 @@ def check_extent(name: str, verts_m: np.ndarray, units: str) -> None:
     extent = float(np.ptp(verts_m, axis=0).max())
     raw = extent / UNITS[units]
     best = _best_unit(raw)
-    if extent > MAX_GARMENT_EXTENT:
+    if extent > MAX_GARMENT_EXTENT_M:
         reading = f"{raw:.4g} units across" + ("" if units == "m" else f" (= {extent:.3g} m read in {units})")
         fix = _advice(best) if best != units else "no unit makes it a garment: check the file"
         raise DrapeError(f"garment {name!r} is {reading}, too large for a garment (at most "
-                         f"{MAX_GARMENT_EXTENT:g} m); PhysDrape works in metres and {fix}")
+                         f"{MAX_GARMENT_EXTENT_M:g} m); PhysDrape works in metres and {fix}")
     if units != "m" and extent < MIN_GARMENT_EXTENT:
         fix = _advice(best) if best != units else "check the file (or read it in a larger unit)"
         raise DrapeError(f"garment {name!r} is {raw:.4g} units across, only {extent:.3g} m read in {units}, "
