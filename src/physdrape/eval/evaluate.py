@@ -58,7 +58,8 @@ from physdrape.physics.contact import penalty_contact_energy
 from physdrape.physics.forces import energy_terms
 from physdrape.physics.oracle import relax, silenced
 from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, Job, Template
-from physdrape.train.data import BodyPool, DataConfig, load_templates
+from physdrape.body.pool import BodyPool
+from physdrape.train.data import DataConfig, load_templates
 
 __all__ = [
     "ABLATION_ROWS",
