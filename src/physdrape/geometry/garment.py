@@ -111,6 +111,29 @@ class Garment:
 
 
 @dataclass(frozen=True)
+class GraphLevels:
+    """A garment batch's message-passing graphs: level 0 the mesh edges, level l > 0 the edges of
+    the l-th coarse graph, which joins a subset of the vertices about 2^l mesh edges apart.
+
+    Attributes:
+        edge_index: (2, E') all levels' directed edges in batch vertex ids, grouped by level
+            (level 0 first: the mesh's `edge_index`), row 0 = sender.
+        level: (E',) the level of each edge.
+        nodes: per level, the batch vertex ids it joins (sorted; level 0: all vertices).
+        local_edge_index: per level, its edges in positions of `nodes[level]`.
+    """
+
+    edge_index: Tensor
+    level: Tensor
+    nodes: tuple[Tensor, ...]
+    local_edge_index: tuple[Tensor, ...]
+
+    @property
+    def edge_counts(self) -> list[int]:
+        return [int(e.shape[1]) for e in self.local_edge_index]
+
+
+@dataclass(frozen=True)
 class GarmentBatch:
     """Several garments packed into one mesh with per-garment offsets.
 
@@ -185,23 +208,26 @@ class GarmentBatch:
     def dtype(self) -> torch.dtype:
         return self.rest.dtype
 
-    def multilevel_edge_index(self, levels: int) -> tuple[Tensor, Tensor]:
-        """Mesh edges plus `levels` coarse levels (`topology.coarse_graphs`), both directions.
-
-        Returns:
-            edge_index (2, E') with row 0 = sender (the mesh's `edge_index` first), and
-            level (E',) int64: 0 for mesh edges, l for an edge of coarse level l.
-        """
+    def graph_levels(self, levels: int) -> GraphLevels:
+        """The mesh graph (level 0) and `levels` coarser graphs over subsets of its vertices
+        (`topology.coarse_graphs`, per garment), both edge directions, for hierarchical message
+        passing. A garment whose hierarchy ends early contributes nothing to the deeper levels."""
         if levels < 0:
             raise ValueError(f"levels must be ≥ 0, got {levels}")
-        index, level = [self.edge_index], [torch.zeros(self.edge_index.shape[1], dtype=torch.int64)]
+        per_level: list[list[Tensor]] = [[] for _ in range(levels)]
         for g, garment in enumerate(self.garments):
             offset = int(self.vert_offsets[g])
-            for l, edges in enumerate(_coarse_graphs(garment, levels), start=1):
-                both = torch.from_numpy(topology.bidirectional_edges(edges)) + offset
-                index.append(both)
-                level.append(torch.full((both.shape[1],), l, dtype=torch.int64))
-        return torch.cat(index, dim=1), torch.cat(level)
+            for l, edges in enumerate(_coarse_graphs(garment, levels)):
+                per_level[l].append(torch.from_numpy(topology.bidirectional_edges(edges)) + offset)
+        edge_index, nodes, local = [self.edge_index], [torch.arange(self.num_verts)], [self.edge_index]
+        for parts in per_level:
+            both = torch.cat(parts, dim=1) if parts else torch.zeros(2, 0, dtype=torch.int64)
+            ids = torch.unique(both)
+            edge_index.append(both)
+            nodes.append(ids)
+            local.append(torch.searchsorted(ids, both))
+        level = torch.cat([torch.full((e.shape[1],), l, dtype=torch.int64) for l, e in enumerate(edge_index)])
+        return GraphLevels(torch.cat(edge_index, dim=1), level, tuple(nodes), tuple(local))
 
     def split(self, values: Tensor) -> list[Tensor]:
         """Split per-vertex values (..., ΣV, C) into one tensor per garment."""

@@ -32,8 +32,9 @@ class ModelConfig:
     """Architecture and module settings of `PhysDrape`; the defaults are the shipped model's.
 
     latent / blocks / mlp_layers: GNN width D, depth L and Linear layers per MLP (paper: 128, 16, 2).
-    levels: coarse graph levels added to the mesh edges for message passing (0: the paper's mesh
-    graph; each level doubles an edge's reach, see `topology.coarse_graphs`; the coarse nodes are
+    levels: coarse graph levels of hierarchical message passing (0: the paper's mesh graph; with
+    K levels the blocks walk V-cycles over levels 0…K, each level reaching about twice as far as
+    the one below, see `gnn.level_schedule` and `topology.coarse_graphs`; the coarse nodes are
     picked in vertex order, so a model with levels is not exactly equivariant to relabelling).
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).

@@ -1,9 +1,21 @@
-"""The force-driven GNN (paper Eqs. 7–9): encode-process-decode on the garment mesh graph."""
+"""The force-driven GNN (paper Eqs. 7–9): encode-process-decode on the garment mesh graph, with
+optional hierarchical message passing over coarse graphs (HOOD-style) so that the network sees
+the whole garment.
+
+With K coarse levels the processor blocks walk V-cycles over the levels, 0, 1, …, K, …, 1, 0, …:
+a block of level l passes messages along the level's edges between the level's nodes only (a
+subset of the vertices about 2^l mesh edges apart) and leaves the other vertices' latents as
+they are. One V-cycle of 2K + 1 blocks reaches about 2·(2^(K+1) − 1) mesh edges, at the cost of
+little more than two blocks on the mesh, since level l has a few times fewer nodes and edges than
+level l − 1.
+"""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+
+from physdrape.geometry.garment import GraphLevels
 
 
 def mlp(in_size: int, hidden: int, out_size: int, *, layers: int = 2, layer_norm: bool = True) -> nn.Sequential:
@@ -35,19 +47,31 @@ class ProcessorBlock(nn.Module):
         return nodes, edges
 
 
+def level_schedule(blocks: int, levels: int) -> list[int]:
+    """The graph level of each processor block: V-cycles 0, 1, …, levels, …, 1, 0, … (all 0 when
+    levels = 0)."""
+    if levels == 0:
+        return [0] * blocks
+    period = 2 * levels
+    return [min(k % period, period - k % period) for k in range(blocks)]
+
+
 class EncodeProcessDecode(nn.Module):
     """Encoders to a latent of width D, L processor blocks, a decoder without LayerNorm.
 
     Args:
         node_in, edge_in: raw (normalised) feature widths; out: decoder output width.
         latent: D; blocks: L; mlp_layers: Linear layers per MLP (the paper: 2).
+        levels: coarse graph levels the blocks walk (`level_schedule`); 0: the mesh graph only.
         zero_init_output: start the decoder's last layer at zero (an untrained network outputs 0).
-    Forward: nodes (N, node_in), edges (E, edge_in), edge_index (2, E) row 0 = sender → (N, out).
+    Forward: nodes (N, node_in), edges (E', edge_in) of all levels in `graph.edge_index`'s order,
+    graph (`GraphLevels` with at least `levels` coarse levels) → (N, out).
     """
 
     def __init__(self, node_in: int, edge_in: int, out: int, *, latent: int, blocks: int, mlp_layers: int = 2,
-                 zero_init_output: bool = False) -> None:
+                 levels: int = 0, zero_init_output: bool = False) -> None:
         super().__init__()
+        self.schedule = level_schedule(blocks, levels)
         self.node_encoder = mlp(node_in, latent, latent, layers=mlp_layers)
         self.edge_encoder = mlp(edge_in, latent, latent, layers=mlp_layers)
         self.blocks = nn.ModuleList(ProcessorBlock(latent, mlp_layers=mlp_layers) for _ in range(blocks))
@@ -56,8 +80,14 @@ class EncodeProcessDecode(nn.Module):
             nn.init.zeros_(self.decoder[-1].weight)
             nn.init.zeros_(self.decoder[-1].bias)
 
-    def forward(self, nodes: Tensor, edges: Tensor, edge_index: Tensor) -> Tensor:
-        h, e = self.node_encoder(nodes), self.edge_encoder(edges)
-        for block in self.blocks:
-            h, e = block(h, e, edge_index)
+    def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels) -> Tensor:
+        h = self.node_encoder(nodes)
+        e = list(torch.split(self.edge_encoder(edges), graph.edge_counts))
+        for block, level in zip(self.blocks, self.schedule):
+            if level == 0:
+                h, e[0] = block(h, e[0], graph.local_edge_index[0])
+            else:
+                ids = graph.nodes[level]
+                sub, e[level] = block(h[ids], e[level], graph.local_edge_index[level])
+                h = h.index_copy(0, ids, sub)
         return self.decoder(h)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from physdrape.geometry.garment import GarmentBatch
+from physdrape.geometry.garment import GarmentBatch, GraphLevels
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model.collision_handler import CollisionHandler
 from physdrape.model.config import ModelConfig, Variant
@@ -56,7 +56,7 @@ class PhysDrape(nn.Module):
         self.edge_normalizer = Normalizer(edge_in, max_accumulations=config.normalizer_accumulations)
         self.gnn = EncodeProcessDecode(
             NODE_FEATURES, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
-            zero_init_output=config.zero_init_output,
+            levels=config.levels, zero_init_output=config.zero_init_output,
         )
         self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
                                        margin=config.margin, contact_stiffness=config.contact_stiffness,
@@ -64,19 +64,16 @@ class PhysDrape(nn.Module):
                                        coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)
 
-    def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, Tensor]:
+    def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, GraphLevels]:
         """Raw (un-normalised) node and edge features at X_init, in the network's dtype, and the
-        edge_index they live on (the mesh edges, plus `config.levels` coarse levels)."""
+        graph they live on (the mesh edges, plus `config.levels` coarse levels)."""
         query = batch.bodies.query(batch.x_init, body_index=batch.body_index)
         net_dtype = self.gnn.decoder[0].weight.dtype
         nodes = node_features(batch.x_init, batch.garments, batch.cloth, query.signed_distance).to(net_dtype)
         levels = self.config.levels
-        if levels:
-            edge_index, level = batch.garments.multilevel_edge_index(levels)
-        else:
-            edge_index, level = batch.garments.edge_index, None
-        edges = edge_features(batch.x_init, batch.garments, edge_index, level, levels)
-        return nodes, edges.to(net_dtype), edge_index
+        graph = batch.garments.graph_levels(levels)
+        edges = edge_features(batch.x_init, batch.garments, graph.edge_index, graph.level, levels)
+        return nodes, edges.to(net_dtype), graph
 
     @torch.no_grad()
     def accumulate_statistics(self, batch: DrapeInput) -> None:
@@ -89,8 +86,8 @@ class PhysDrape(nn.Module):
         """Drape a batch. steps: solver steps T (default: train_steps in training, else eval_steps)."""
         cfg = self.config
         x_init = batch.x_init
-        nodes, edges, edge_index = self.graph_inputs(batch)
-        out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), edge_index)
+        nodes, edges, graph = self.graph_inputs(batch)
+        out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), graph)
         out = out.to(x_init.dtype)
         delta_x = cfg.displacement_scale * out[:, :3]
         # f̂ in units of each vertex's weight: the support a vertex needs is of that order.
