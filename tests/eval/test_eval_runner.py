@@ -19,9 +19,9 @@ from physdrape.eval.evaluate import (
     EvalConfig,
     InstanceInput,
     _evaluate_set,
-    _Instance,
     evaluate,
 )
+from physdrape.eval.instances import Instance
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.geometry.proximity import BodySurface
@@ -34,9 +34,11 @@ from physdrape.train.trainer import TrainConfig
 
 
 @pytest.fixture(scope="module")
-def tiny(tiny_split) -> EvalConfig:
-    """2 instances of the tiny split; max_iters (not the wall-time budget) stops the oracle: deterministic."""
-    return EvalConfig(instances=2, max_garments=2, oracle_budget_s=60.0, oracle_max_iters=2, split_dir=tiny_split)
+def tiny(tiny_split, tmp_path_factory) -> EvalConfig:
+    """The 2 instances of the tiny split (its 2 test garments, one pose each); max_iters (not the
+    wall-time budget) stops the oracle: deterministic. The reference cache is the module's own."""
+    return EvalConfig(max_garments=2, oracle_budget_s=60.0, oracle_max_iters=2, split_dir=tiny_split,
+                      reference_cache=str(tmp_path_factory.mktemp("reference_cache")))
 
 
 def tiny_checkpoint(root, seed: int = 0):
@@ -55,6 +57,12 @@ def results(checkpoint, anny_body, tiny):
     return evaluate(checkpoint, tiny, body=anny_body, command="test", log=lambda _: None)
 
 
+@pytest.fixture(scope="module")
+def again(checkpoint, anny_body, tiny, results):
+    """The same evaluation run a second time (after `results`: its oracle comes from the cache)."""
+    return evaluate(checkpoint, tiny, body=anny_body, command="test", log=lambda _: None)
+
+
 def all_summaries(res):
     data = res["sets"]["test"]
     yield from ((k, row["summary"]) for k, row in data["rows"].items())
@@ -67,10 +75,11 @@ def all_summaries(res):
 def test_both_tables_have_all_rows_with_finite_numbers(results, tiny):
     data = results["sets"]["test"]
     assert set(data["rows"]) == {s.key for s in MAIN_ROWS} | {f"ablation:{s.key}" for s in ABLATION_ROWS}
-    assert len(data["oracle"]["per_instance"]) == tiny.instances
+    assert len(data["oracle"]["per_instance"]) == len(data["instances"]) == 2  # the whole (tiny) test split
+    assert [i["garment"] for i in data["instances"]] == ["0000_tshirt", "0001_longsleeve"]
     for key, summary in all_summaries(results):
         for name in ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "energy_total", "wall_s",
-                     "strain_ratio", "bend_ratio"):
+                     "strain_ratio", "bend_ratio", "energy_total_ratio"):
             assert math.isfinite(summary[name]), (key, name)
     for start in ("x_init", "skinned"):  # context rows: PhysDrape's start and the oracle's
         assert math.isfinite(data[start]["summary"]["strain"]), start
@@ -89,7 +98,7 @@ def test_ratio_to_the_reference_is_the_ratio_of_the_json_numbers(results, tmp_pa
     reference = data["reference"]["summary"]
     for key, row in [*data["rows"].items(), ("x_init", data["x_init"]), ("oracle", data["oracle"])]:
         s = row["summary"]
-        for name in ("strain", "bend"):
+        for name in ("strain", "bend", "energy_total"):
             assert s[f"{name}_ratio"] == pytest.approx(s[name] / reference[name], rel=1e-12), (key, name)
             assert s[name] == pytest.approx(np.mean([r[name] for r in row["per_instance"]]), rel=1e-12)
     assert md_path.read_text() == render_markdown(results)
@@ -111,10 +120,15 @@ def test_reference_is_the_lower_energy_oracle_result_and_refining_never_raises_t
     assert "| Oracle refining PhysDrape (T=15) (" in md and "| Reference (lower E_total per instance;" in md
 
 
-def test_without_refinement_the_reference_is_the_oracle(checkpoint, anny_body, tiny):
-    res = evaluate(checkpoint, replace(tiny, instances=1, oracle_refine=False), body=anny_body, command="test",
-                   log=lambda _: None)
+def test_without_refinement_the_reference_is_the_oracle(checkpoint, anny_body, tiny, results):
+    res = evaluate(checkpoint, replace(tiny, instances=1, oracle_refine=False, reference_cache=None), body=anny_body,
+                   command="test", log=lambda _: None)
     data = res["sets"]["test"]
+    # no cache: the oracle ran again, to the numbers of the first run (max_iters stops it)
+    assert res["reference_cache"] is None and not data["oracle"]["per_instance"][0]["cached"]
+    skip = ("cached", "wall_s", "history")
+    assert ({k: v for k, v in data["oracle"]["per_instance"][0].items() if k not in skip}
+            == {k: v for k, v in results["sets"]["test"]["oracle"]["per_instance"][0].items() if k not in skip})
     assert data["oracle_refined"] is None
     assert data["reference"]["summary"]["strain"] == data["oracle"]["summary"]["strain"]
     assert data["oracle"]["summary"]["strain_ratio"] == pytest.approx(1.0)
@@ -130,8 +144,7 @@ def test_paper_rows_are_labelled_as_context(results):
     assert results["published"]["note"] == PUBLISHED_NOTE
 
 
-def test_tables_are_reproducible_for_a_seed(checkpoint, anny_body, results, tiny):
-    again = evaluate(checkpoint, tiny, body=anny_body, command="test", log=lambda _: None)
+def test_tables_are_reproducible_for_a_seed(results, again):
     assert render_markdown(again, timing=False) == render_markdown(results, timing=False)
     for key, row in results["sets"]["test"]["rows"].items():
         for a, b in zip(row["per_instance"], again["sets"]["test"]["rows"][key]["per_instance"]):
@@ -139,15 +152,42 @@ def test_tables_are_reproducible_for_a_seed(checkpoint, anny_body, results, tiny
             assert {k: v for k, v in a.items() if k not in timing} == {k: v for k, v in b.items() if k not in timing}
 
 
-def test_switched_variants_share_the_weights_and_ablation_checkpoints_are_used(checkpoint, tmp_path, tiny):
-    full, info = load_model(checkpoint, variant=Variant.FULL)
-    gnn, _ = load_model(checkpoint.parent, variant=Variant.GNN_ONLY)  # a run directory: its latest
-    assert info["step"] == 1 and gnn.config.variant is Variant.GNN_ONLY
-    for (name, a), (_, b) in zip(full.state_dict().items(), gnn.state_dict().items()):
-        torch.testing.assert_close(a, b, msg=name)
-    other = tiny_checkpoint(tmp_path / "gnn", seed=1)
-    with pytest.raises(ValueError, match="unknown ablation names"):
-        evaluate(checkpoint, tiny, ablation={"nope": other})
+def test_a_rerun_reads_the_oracle_from_the_reference_cache_with_identical_numbers(results, again, tiny):
+    first = results["sets"]["test"]["oracle"]["per_instance"]
+    assert not any(r["cached"] for r in first) and results["reference_cache"]["misses"] == 2
+    assert again["reference_cache"] == {"dir": tiny.reference_cache, "hits": 2, "misses": 0}
+    cached = again["sets"]["test"]["oracle"]["per_instance"]
+    assert all(r["cached"] for r in cached)
+    for a, b in zip(first, cached, strict=True):
+        assert {k: v for k, v in a.items() if k != "cached"} == {k: v for k, v in b.items() if k != "cached"}
+    assert again["sets"]["test"]["oracle"]["summary"]["cached"] == 2
+    assert "were read from the reference cache" in render_markdown(again)
+
+
+def test_per_category_means_and_ratios_are_those_of_the_categorys_instances(results, tmp_path):
+    json_path, _ = write_results(results, tmp_path)
+    data = json.loads(json_path.read_text())["sets"]["test"]
+    categories = data["categories"]
+    assert list(categories) == ["tshirt", "longsleeve"]  # the tiny split's two test garments, in table order
+    reference = data["reference"]["per_instance"]
+    for category, entry in categories.items():
+        members = entry["instances"]
+        assert [data["instances"][i]["category"] for i in members] == [category] * len(members)
+        ref = {name: np.mean([reference[i][name] for i in members]) for name in ("strain", "energy_total")}
+        for key in [*data["rows"], "x_init", "skinned", "oracle", "oracle_refined", "reference"]:
+            per_instance = (data[key] if key in data else data["rows"][key])["per_instance"]
+            row = entry["rows"][key]
+            for name in ("strain", "energy_total", "b2g_percent"):
+                assert row[name] == pytest.approx(np.mean([per_instance[i][name] for i in members]), rel=1e-12)
+            for name in ("strain", "energy_total"):
+                assert row[f"{name}_ratio"] == pytest.approx(row[name] / ref[name], rel=1e-12), (category, key)
+        assert entry["rows"]["reference"]["energy_total_ratio"] == pytest.approx(1.0)
+    md = render_markdown(results)
+    table = md[md.index("E_total / reference by garment category"):md.index("## Table 2")]
+    assert "| Method | all (2) | tshirt (1) | longsleeve (1) |" in table
+    label = results["row_definitions"]["physdrape_t15"]["label"]
+    (line,) = [row for row in table.splitlines() if row.startswith(f"| {label} |")]
+    assert len(line.split(" | ")) == 4 and "–" not in line  # all, tshirt, longsleeve: every ratio finite
 
 
 def sheet_over_box_edge() -> DrapeInput:
@@ -162,7 +202,7 @@ def sheet_over_box_edge() -> DrapeInput:
 def test_converged_oracle_row_meets_its_tolerance(checkpoint):
     model, _ = load_model(checkpoint, variant=Variant.FULL)
     config = EvalConfig(instances=1, oracle_budget_s=30.0)
-    inst = _Instance("test", 0, "sheet", 0, 0, 81, lambda: InstanceInput(sheet_over_box_edge(), 0.0, None))
+    inst = Instance("test", 0, "sheet", 0, 0, 81, lambda: InstanceInput(sheet_over_box_edge(), 0.0, None))
     data = _evaluate_set([inst], {"full": model}, {"full": ("full", 3, True)}, config, Contact.of(model),
                          log=lambda _: None)
     (record,) = data["oracle"]["per_instance"]

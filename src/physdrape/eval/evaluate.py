@@ -1,10 +1,11 @@
 """The evaluation protocol (paper Tables 1–2, DESIGN.md Sec. 4–5): model rows vs. the physics oracle.
 
-Instances: the test garments of the split × a seeded pool of posed Anny bodies (shapes and poses
-drawn with the evaluation seed), default material. Instance i drapes garment ``garment_of(i)``
-(evenly spaced over the test garments when there are fewer instances than garments, cyclic
-otherwise) on pool body i. Every instance is draped alone (batch of one), so wall times are per
-garment. Optionally the CC0 MakeHuman garments are evaluated the same way, as a second set.
+Instances (`physdrape.eval.instances`): instance i drapes test garment i mod G in pose i div G,
+on a posed Anny body drawn from its own seed (evaluation seed, set, garment, pose), default
+material; by default every test garment of the split once (`EvalConfig.poses_per_garment` times),
+and `EvalConfig.instances` = N takes the first N of that one list, so an instance is the same
+whatever N. Every instance is draped alone (batch of one), so wall times are per garment.
+Optionally the CC0 MakeHuman garments are evaluated the same way, as a second set.
 
 Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switch of the model):
 
@@ -16,7 +17,9 @@ Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switc
 - ``physics_only``: the same solver and handler with the network left out (Δx = 0, f̂ = 0): what
   the network adds is the difference to ``physdrape_t15``;
 - ``oracle``: `physdrape.physics.relax` from the skinned start (penalty contact, default tol 1e-2, a
-  wall-time budget per instance); its row reports whether it converged;
+  wall-time budget per instance); its row reports whether it converged. It does not involve the
+  model, so its results are cached per instance (`physdrape.eval.reference_cache`) and reused by
+  the evaluation of any checkpoint on the same instances and settings;
 - ``oracle_refined``: the same `relax` started from the PhysDrape (T=15) drape (the refinement mode
   users call to polish a drape); its wall time includes the model's;
 - ``reference``: per instance the lower-E_total of the two oracle results: the best equilibrium
@@ -30,36 +33,41 @@ when given, otherwise the same switches of the main checkpoint (labelled as such
 Metrics per row and instance: `physdrape.physics.metrics.drape_metrics` (E_strain, E_bend, B2G %,
 close %, residual force) plus the total static energy the oracle minimises (strain + bend +
 gravity + contact penalty) and the wall time. Energies are also given as the ratio of the row's
-mean to the reference's mean over the same instances.
+mean to the reference's mean over the same instances, over all instances and per garment category
+(the category a split garment's name carries, `physdrape.eval.summary.by_category`).
 """
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
-from functools import partial
-from pathlib import Path
+from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
-import numpy as np
 import torch
 
-from physdrape.body.skinning_transfer import LOCAL_STRETCH_BOUND
 from physdrape.checkpoint import load_model
-from physdrape.eval.report import PUBLISHED_ABLATION, PUBLISHED_MAIN, PUBLISHED_NOTE, provenance
-from physdrape.physics.metrics import drape_metrics
+from physdrape.eval import summary as agg
+from physdrape.eval.config import EvalConfig, reference_cache_dir
+from physdrape.eval.instances import (
+    Instance,
+    InstanceInput,
+    makehuman_instances,
+    split_instances,
+)
+from physdrape.eval.reference_cache import ReferenceCache, reference_key
+from physdrape.eval.report import (
+    PUBLISHED_ABLATION,
+    PUBLISHED_MAIN,
+    PUBLISHED_NOTE,
+    provenance,
+)
 from physdrape.model import DrapeInput, PhysDrape, Variant
-from physdrape.physics import Material
 from physdrape.physics.contact import penalty_contact_energy
 from physdrape.physics.forces import energy_terms
+from physdrape.physics.metrics import drape_metrics
 from physdrape.physics.oracle import relax, silenced
-from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, Job, Template
-from physdrape.body.pool import BodyPool
-from physdrape.train.data import DataConfig, load_templates
 
 __all__ = [
     "ABLATION_ROWS",
@@ -69,8 +77,6 @@ __all__ = [
     "RowSpec",
     "evaluate",
 ]
-
-METRIC_KEYS = ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative", "energy_total")
 
 
 @dataclass(frozen=True)
@@ -106,144 +112,11 @@ ABLATION_ROWS = (
 ABLATION_NAMES = tuple(r.key for r in ABLATION_ROWS)
 
 
-@dataclass(frozen=True)
-class EvalConfig:
-    """instances: test instances N; seed: of the body shapes/poses (and instance layout);
-    oracle: run the oracle; oracle_budget_s: its wall-time budget per instance [s]; oracle_tol:
-    its residual tolerance; oracle_max_iters: its iteration cap; oracle_refine: also run the
-    oracle from the PhysDrape (T=15) drape and measure against the better of the two;
-    split_dir / max_garments: the garment split ("" = default cache) and its first N test
-    garments (0 = all); makehuman_dir: CC0 MakeHuman garments (.mhclo), "" = skip;
-    makehuman_instances: bodies per MakeHuman garment; makehuman_max_verts: skip MakeHuman
-    garments with more vertices (0 = no cap); dtype: of the garments, bodies and physics handed
-    to the model ("float32"/"float64"; default: the API's, so the evaluation measures what
-    `Draper` runs; the network keeps its own); threads: torch threads (0: torch's default)."""
 
-    instances: int = 10
-    seed: int = 0
-    oracle: bool = True
-    oracle_budget_s: float = 60.0
-    oracle_tol: float = 1e-2
-    oracle_max_iters: int = 200
-    oracle_refine: bool = True
-    split_dir: str = ""
-    max_garments: int = 0
-    makehuman_dir: str = ""
-    makehuman_instances: int = 1
-    makehuman_max_verts: int = 0
-    dtype: str = str(DEFAULT_DTYPE).removeprefix("torch.")
-    threads: int = 1
-
-    def __post_init__(self) -> None:
-        if self.instances < 1:
-            raise ValueError(f"EvalConfig.instances must be ≥ 1, got {self.instances}")
-        if self.dtype not in ("float32", "float64"):
-            raise ValueError(f"EvalConfig.dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        if self.makehuman_max_verts < 0:
-            raise ValueError(f"EvalConfig.makehuman_max_verts must be ≥ 0 (0: no cap), got {self.makehuman_max_verts}")
-        if self.oracle_max_iters < 1:
-            raise ValueError(f"EvalConfig.oracle_max_iters must be ≥ 1, got {self.oracle_max_iters}")
-        if not self.oracle_budget_s > 0:
-            raise ValueError(f"EvalConfig.oracle_budget_s must be > 0, got {self.oracle_budget_s}")
-
-
-# ------------------------------------------------------------------------------------------
-# Models and instances
-# ------------------------------------------------------------------------------------------
-
-
-def garment_of(i: int, num_instances: int, num_garments: int) -> int:
-    """Garment of instance i: evenly spaced when N ≤ G, cyclic otherwise."""
-    return (i * num_garments) // num_instances if num_instances <= num_garments else i % num_garments
-
-
-@dataclass
-class _Instance:
-    """One test instance; its tensors (`batch`) are built on demand and dropped after use, so the
-    evaluation holds one instance in memory at a time."""
-
-    set_name: str
-    index: int
-    garment: str
-    garment_index: int
-    body_index: int
-    num_verts: int
-    build: Callable[[], InstanceInput]
-
-    def batch(self) -> InstanceInput:
-        return self.build()
-
-
-class InstanceInput(NamedTuple):
-    """One built instance. drape: the model's input (X_init included); init_s: wall seconds of
-    computing that X_init (skinning + contact-aware strain limiting; the transfer weights are
-    fitted once per garment, outside the timing); skinned: where the classical references (the
-    oracle, the VBD bench) start: the garment skinned with only the local strain limit of the
-    skinning artefacts (`LOCAL_STRETCH_BOUND`), i.e. without the global pull-back that is part of
-    PhysDrape's own pipeline and timed as such; None = start from X_init."""
-
-    drape: DrapeInput
-    init_s: float
-    skinned: torch.Tensor | None
-
-
-def _instance_batch(pipeline: DrapePipeline, pool, template: Template, body: int) -> InstanceInput:
-    """`template` on pool body `body`, default material, built by the drape pipeline exactly as
-    `Draper.drape` builds it (see `InstanceInput`)."""
-    state = pool.state(body)
-    t0 = time.perf_counter()
-    x_init = pipeline.x_init(template, state)
-    init_s = time.perf_counter() - t0
-    with torch.no_grad():
-        skinned = replace(pipeline.transfer(template), max_stretch=LOCAL_STRETCH_BOUND).apply(state)[0]
-    drape = pipeline.build([Job(template, 0, Material(), x_init)], state)
-    return InstanceInput(drape, init_s, skinned.to(pipeline.dtype))
-
-
-def _instances(set_name: str, templates: list[Template], pool, config: EvalConfig, body) -> list[_Instance]:
-    """Instance i of a set: garment `garment_of(i)` on pool body i (the pool's seed fixes the bodies)."""
-    pipeline = DrapePipeline(body, dtype=getattr(torch, config.dtype))
-    out = []
-    for i in range(len(pool)):
-        g = garment_of(i, len(pool), len(templates))
-        out.append(_Instance(set_name, i, templates[g].name, g, i, templates[g].num_verts,
-                             partial(_instance_batch, pipeline, pool, templates[g], i)))
-    return out
-
-
-def _test_instances(config: EvalConfig, body) -> list[_Instance]:
-    data = DataConfig(split_dir=config.split_dir, split_seed=0, subset="test", max_garments=config.max_garments)
-    templates = load_templates(data)
-    if not templates:
-        raise ValueError(f"no test garments in the split ({config.split_dir or 'the default cache'})")
-    pool = BodyPool(body, config.instances, seed=config.seed, dtype=POSE_DTYPE)
-    return _instances("test", templates, pool, config, body)
-
-
-def _makehuman_instances(config: EvalConfig, body) -> tuple[list[_Instance], list[str]]:
-    """Instances of the CC0 MakeHuman garments (skipped with a note if anything is missing)."""
-    from physdrape.garments.mhclo import load_mhclo
-
-    notes = []
-    root = Path(config.makehuman_dir).expanduser()
-    files = sorted(root.glob("*/*.mhclo")) + sorted(root.glob("*.mhclo"))
-    if not files:
-        return [], [f"MakeHuman: no .mhclo under {root}; skipped"]
-    templates = []
-    for path in files:
-        try:
-            g = load_mhclo(path)
-            if config.makehuman_max_verts and len(g.verts) > config.makehuman_max_verts:
-                notes.append(f"MakeHuman: {path.name} skipped ({len(g.verts)} vertices > makehuman_max_verts "
-                             f"{config.makehuman_max_verts})")
-                continue
-            templates.append(Template.from_mesh(g.verts, g.faces, name=path.stem))
-        except Exception as exc:  # noqa: BLE001 (an optional set: report and go on)
-            notes.append(f"MakeHuman: {path.name} skipped ({type(exc).__name__}: {exc})")
-    if not templates:
-        return [], notes
-    pool = BodyPool(body, len(templates) * config.makehuman_instances, seed=config.seed + 1, dtype=POSE_DTYPE)
-    return _instances("makehuman", templates, pool, config, body), notes
+def _test_instances(config: EvalConfig, body) -> list[Instance]:
+    """The test set's instances (`physdrape.eval.instances.split_instances`); bench/ times the
+    protocol's instances through it."""
+    return split_instances(config, body)
 
 
 # ------------------------------------------------------------------------------------------
@@ -299,61 +172,56 @@ def run_oracle(batch: DrapeInput, config: EvalConfig, contact: Contact, start: t
                      margin=contact.margin, max_iters=config.oracle_max_iters, time_budget_s=config.oracle_budget_s)
 
 
+def oracle_settings(config: EvalConfig, contact: Contact) -> dict:
+    """The settings `run_oracle` runs with, as recorded in the reference cache's keys."""
+    return {"contact": "penalty", "tol": config.oracle_tol, "max_iters": config.oracle_max_iters,
+            "time_budget_s": config.oracle_budget_s, "contact_stiffness": contact.stiffness,
+            "margin": contact.margin, "dtype": config.dtype}
+
+
+def _oracle_fields(result) -> dict:
+    """What an oracle record holds beyond the metrics of its drape (the reference cache keeps these)."""
+    terms = {name: float(value.sum()) for name, value in result.energy_terms.items()}
+    return {"wall_s": float(result.wall_time), "converged": bool(result.converged), "reason": result.reason,
+            "oracle_residual": float(result.residual.max()), "iterations": len(result.history) - 1,
+            "oracle_energy_total": terms["total"], "oracle_energy_terms": terms,
+            "history": [{"iteration": h.iteration, "energy": h.energy, "residual": h.residual, "wall": h.wall}
+                        for h in result.history]}
+
+
 def _oracle_record(result, batch: DrapeInput, contact: Contact) -> dict:
-    rec = _metrics(result.x.to(batch.x_init.dtype), batch, contact)
-    rec.update(wall_s=float(result.wall_time), converged=bool(result.converged), reason=result.reason,
-               oracle_residual=float(result.residual.max()), iterations=len(result.history) - 1,
-               oracle_energy_total=float(result.energy_terms["total"].sum()))
-    rec["history"] = [{"iteration": h.iteration, "energy": h.energy, "residual": h.residual, "wall": h.wall}
-                      for h in result.history]
-    return rec
+    return {**_metrics(result.x.to(batch.x_init.dtype), batch, contact), **_oracle_fields(result)}
+
+
+def skinned_oracle(batch: DrapeInput, start: torch.Tensor | None, config: EvalConfig, contact: Contact,
+                   cache: ReferenceCache | None) -> dict:
+    """The record of the oracle from `start` (None: X_init), from `cache` when it holds this
+    instance under these settings (``cached`` says which), else run and added to it."""
+    start = batch.x_init if start is None else start
+    key = reference_key(batch, start, oracle_settings(config, contact)) if cache is not None else None
+    hit = cache.load(key, start.shape[0]) if cache is not None else None
+    if hit is not None:
+        x, fields = hit
+    else:
+        result = run_oracle(batch, config, contact, start)
+        x, fields = result.x, _oracle_fields(result)
+        if cache is not None:
+            cache.store(key, x, fields)
+    return {**_metrics(x.to(batch.x_init.dtype), batch, contact), **fields, "cached": hit is not None}
 
 
 # ------------------------------------------------------------------------------------------
-# Aggregation
+# One instance set
 # ------------------------------------------------------------------------------------------
-
-
-def _summary(records: list[dict]) -> dict:
-    out = {}
-    for key in METRIC_KEYS + ("wall_s",):
-        values = [r[key] for r in records]
-        out[key] = float(np.mean(values)) if values else math.nan
-    out["wall_s_median"] = float(np.median([r["wall_s"] for r in records])) if records else math.nan
-    return out
-
-
-def _with_ratios(summary: dict, reference: dict | None) -> dict:
-    """Adds strain/bend ratio to the reference's mean over the same instances."""
-    for key in ("strain", "bend"):
-        ref = reference[key] if reference else math.nan
-        summary[f"{key}_ratio"] = summary[key] / ref if reference and ref != 0 else math.nan
-    return summary
-
-
-def _oracle_summary(records: list[dict]) -> dict:
-    summary = _summary(records)
-    summary["converged"] = sum(r["converged"] for r in records)
-    summary["oracle_residual_max"] = max(r["oracle_residual"] for r in records)
-    return summary
-
-
-def _reference(oracle: list[dict], refined: list[dict]) -> list[dict]:
-    """Per instance the oracle result with the lower E_total (ties: the oracle's), tagged with
-    its source ("oracle" or "oracle_refined"); without refinement, the oracle's own records."""
-    if not refined:
-        return [{**r, "source": "oracle"} for r in oracle]
-    return [{**b, "source": "oracle_refined"} if b["energy_total"] < a["energy_total"] else {**a, "source": "oracle"}
-            for a, b in zip(oracle, refined, strict=True)]
 
 
 #: The model row the oracle refines (EvalConfig.oracle_refine).
 REFINED_ROW = "physdrape_t15"
 
-
-def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: EvalConfig, contact: Contact,
-                  log) -> dict:
-    """Per-instance records and summaries of every row (and the oracle) on one instance set."""
+def _evaluate_set(instances: list[Instance], models: dict, rows: dict, config: EvalConfig, contact: Contact,
+                  log, cache: ReferenceCache | None = None) -> dict:
+    """Per-instance records and summaries of every row (and the oracle) on one instance set, over
+    all its instances and per garment category; `cache`: the oracle results from the skinned start."""
     per_row: dict[str, list[dict]] = {key: [] for key in rows}
     oracle: list[dict] = []
     refined: list[dict] = []
@@ -374,10 +242,12 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
             per_row[key].append(rec)
             if refine and key == REFINED_ROW:
                 to_refine = x
-        line = f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment} ({inst.num_verts} verts)"
+        line = (f"[eval] {inst.set_name} {inst.index + 1}/{len(instances)} {inst.garment} pose {inst.pose_index} "
+                f"({inst.num_verts} verts)")
         if config.oracle:
-            oracle.append(_oracle_record(run_oracle(batch, config, contact, skinned), batch, contact))
-            line += f": oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s"
+            oracle.append(skinned_oracle(batch, skinned, config, contact, cache))
+            line += (f": oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s"
+                     + (" (cached)" if oracle[-1]["cached"] else ""))
         if refine:
             rec = _oracle_record(run_oracle(batch, config, contact, to_refine), batch, contact)
             rec["oracle_wall_s"] = rec["wall_s"]
@@ -386,28 +256,32 @@ def _evaluate_set(instances: list[_Instance], models: dict, rows: dict, config: 
             line += f"; refined {rec['reason']} in {rec['oracle_wall_s']:.1f} s"
         del batch
         log(f"{line}; peak memory {_peak_rss_gib():.1f} GiB")
-    reference = _reference(oracle, refined) if oracle else []
-    ref_summary = _oracle_summary(reference) if reference else None
+    reference = agg.reference(oracle, refined) if oracle else []
+    ref_summary = agg.oracle_summary(reference) if reference else None
     if ref_summary is not None:
         ref_summary["from_refinement"] = sum(r["source"] == "oracle_refined" for r in reference)
+
+    def block(records: list[dict], summarize=agg.summary) -> dict:
+        return {"summary": agg.with_ratios(summarize(records), ref_summary), "per_instance": records}
+
     result = {
-        "instances": [{"index": i.index, "garment": i.garment, "garment_index": i.garment_index,
-                       "body_index": i.body_index, "num_verts": i.num_verts} for i in instances],
-        "rows": {key: {"summary": _with_ratios(_summary(recs), ref_summary), "per_instance": recs}
-                 for key, recs in per_row.items()},
-        "oracle": ({"summary": _with_ratios(_oracle_summary(oracle), ref_summary), "per_instance": oracle}
-                   if oracle else None),
-        "oracle_refined": ({"summary": _with_ratios(_oracle_summary(refined), ref_summary), "per_instance": refined}
-                           if refined else None),
-        "reference": ({"summary": _with_ratios(dict(ref_summary), ref_summary),
+        "instances": [inst.describe() for inst in instances],
+        "rows": {key: block(recs) for key, recs in per_row.items()},
+        "oracle": block(oracle, agg.oracle_summary) if oracle else None,
+        "oracle_refined": block(refined, agg.oracle_summary) if refined else None,
+        "reference": ({"summary": agg.with_ratios(dict(ref_summary), ref_summary),
                        "per_instance": [{k: v for k, v in r.items() if k != "history"} for r in reference]}
                       if reference else None),
-        "x_init": {"summary": _with_ratios(_summary(start), ref_summary), "per_instance": start},
+        "x_init": block(start),
     }
     if plain:
-        result["skinned"] = {"summary": _with_ratios(_summary(plain), ref_summary), "per_instance": plain}
+        result["skinned"] = block(plain)
+    context = {"x_init": start, **({"skinned": plain} if plain else {})}
+    extra = {name: recs for name, recs in (("oracle", oracle), ("oracle_refined", refined), ("reference", reference))
+             if recs}
+    result["categories"] = agg.by_category([inst.category for inst in instances], {**context, **per_row, **extra},
+                                           reference or None)
     return result
-
 
 def _peak_rss_gib() -> float:
     """Peak resident memory of this process so far [GiB] (Linux: ru_maxrss in KiB)."""
@@ -458,17 +332,27 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
         body = get_anny_body()
     instances = _test_instances(config, body)
     contact = Contact.of(models["physdrape_t15"])
-    sets = {"test": _evaluate_set(instances, models, {**main_rows, **abl_rows}, config, contact, log)}
+    cache_dir = reference_cache_dir(config) if config.oracle else None
+    cache = ReferenceCache(cache_dir) if cache_dir is not None else None
+    garments = len({inst.garment_index for inst in instances})
+    log(f"[eval] test set: {len(instances)} instances ({garments} test garments, up to "
+        f"{max(inst.pose_index for inst in instances) + 1} pose(s) each, body seed {config.seed})"
+        + (f"; oracle results from the skinned start cached in {cache_dir}" if cache is not None else ""))
+    rows = {**main_rows, **abl_rows}
+    sets = {"test": _evaluate_set(instances, models, rows, config, contact, log, cache)}
     notes = []
     if config.makehuman_dir:
         try:
-            mh, notes = _makehuman_instances(config, body)
+            mh, notes = makehuman_instances(config, body)
         except Exception as exc:  # noqa: BLE001 (an optional set never sinks the main evaluation)
             mh, notes = [], [f"MakeHuman set skipped ({type(exc).__name__}: {exc})"]
-        if mh:
-            sets["makehuman"] = _evaluate_set(mh, models, {**main_rows, **abl_rows}, config, contact, log)
         for note in notes:
             log(f"[eval] {note}")
+        if mh:
+            log(f"[eval] makehuman set: {len(mh)} instances")
+            sets["makehuman"] = _evaluate_set(mh, models, rows, config, contact, log, cache)
+    if cache is not None:
+        log(f"[eval] reference cache {cache_dir}: {cache.hits} oracle result(s) reused, {cache.misses} computed")
 
     return {
         "format": "physdrape-eval-1",
@@ -489,6 +373,8 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
                               + ("; the same from the PhysDrape (T=15) drape (refined); the reference is per instance "
                                  "the lower-E_total of the two" if config.oracle_refine else "")) if config.oracle else None,
         "published": {"note": PUBLISHED_NOTE, "table1": PUBLISHED_MAIN, "table2": PUBLISHED_ABLATION},
+        "reference_cache": ({"dir": str(cache_dir), "hits": cache.hits, "misses": cache.misses}
+                            if cache is not None else None),
         "sets": sets,
         "notes": notes,
         "total_wall_s": time.perf_counter() - t_start,

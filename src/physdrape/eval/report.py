@@ -62,16 +62,30 @@ def _fmt(value, digits: int = 3) -> str:
 def _table(rows: list[tuple[str, dict]], *, timing: bool, oracle: bool) -> list[str]:
     head = ["Method", "E_strain [J]", "E_bend [J]", "B2G %", "close %", "residual [N]", "E_total [J]"]
     if oracle:
-        head += ["E_strain / reference", "E_bend / reference"]
+        head += ["E_strain / reference", "E_bend / reference", "E_total / reference"]
     if timing:
         head += ["wall / garment [s] (mean)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, s in rows:
         cells = [label] + [_fmt(s.get(k)) for k in ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "energy_total")]
         if oracle:
-            cells += [_fmt(s.get("strain_ratio")), _fmt(s.get("bend_ratio"))]
+            cells += [_fmt(s.get(f"{k}_ratio")) for k in ("strain", "bend", "energy_total")]
         if timing:
             cells += [_fmt(s.get("wall_s"))]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _category_table(rows: list[tuple[str, str]], data: dict) -> list[str]:
+    """Rows × garment categories: each row's mean E_total over the category's instances over the
+    reference's mean over them (the column "all": over every instance)."""
+    categories = data["categories"]
+    head = ["Method", f"all ({len(data['instances'])})"] + [f"{c} ({len(v['instances'])})" for c, v in categories.items()]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for label, key in rows:
+        overall = (data[key] if key in data else data["rows"][key])["summary"]
+        cells = [label, _fmt(overall.get("energy_total_ratio"))]
+        cells += [_fmt(v["rows"][key]["energy_total_ratio"]) for v in categories.values()]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -89,8 +103,11 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
     has_oracle = bool(cfg["oracle"])
     out = ["# PhysDrape evaluation", ""]
     ck = results["checkpoints"]["physdrape_t15"]
-    out.append(f"Checkpoint: `{ck['path']}` (step {ck['step']}). Seed {cfg['seed']}, {cfg['instances']} test instances, "
-               f"default material, dtype {cfg['dtype']}.")
+    test = results["sets"]["test"]["instances"]
+    poses = max(i.get("pose_index", 0) for i in test) + 1 if test else 0
+    out.append(f"Checkpoint: `{ck['path']}` (step {ck['step']}). Seed {cfg['seed']}, {len(test)} test instances "
+               f"({len({i['garment'] for i in test})} test garments, up to {poses} pose(s) each; instance i: garment "
+               f"i mod G in pose i div G, on a body drawn from its own seed), default material, dtype {cfg['dtype']}.")
     if timing:
         out.append(f"Command: `{results['command']}`")
     out.append("")
@@ -112,6 +129,12 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
                "contact penalty (what the oracle minimises). Ratios: row mean / reference mean on "
                "the same instances. residual: mean |F_int| over vertices > 3 mm from the body. The oracle's wall time "
                "is a lower bound where it stopped on its budget instead of converging.")
+    cache = results.get("reference_cache")
+    if timing and cache and cache["hits"]:
+        out.append("")
+        out.append(f"{cache['hits']} of the oracle runs from the skinned start were read from the reference cache "
+                   f"(`{cache['dir']}`): the same instance, settings and code version; their wall times are those of "
+                   "the run that computed them.")
     for set_name, data in results["sets"].items():
         oracle = data["oracle"]["summary"] if data["oracle"] else None
         title = "test garments × seeded Anny shapes/poses" if set_name == "test" else "CC0 MakeHuman garments"
@@ -131,6 +154,15 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
             rows.append((f"Reference (lower E_total per instance; {reference['from_refinement']}/{n} from the "
                          "refinement)", reference))
         out += _table(rows, timing=timing, oracle=has_oracle)
+        if data.get("categories") and data.get("reference"):
+            keyed = ([("Skinned", "skinned")] if "skinned" in data else []) + [("X_init", "x_init")]
+            keyed += [(results["row_definitions"][k]["label"], k) for k in results["row_definitions"]]
+            keyed += [(label, key) for label, key in (("Oracle from the skinned start", "oracle"),
+                                                      ("Oracle refining PhysDrape (T=15)", "oracle_refined"))
+                      if data.get(key)]
+            out += ["", ("E_total / reference by garment category (row mean over the category's instances over the "
+                         "reference's mean over them; instances in brackets):"), ""]
+            out += _category_table(keyed, data)
         sources = {d["source"] for d in results["ablation_definitions"].values()}
         if sources == {"switched"}:
             how = "switched at inference on the full model, not retrained"

@@ -1,0 +1,76 @@
+"""Means over instances: per row, per garment category, and the ratios to the reference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from physdrape.eval.instances import CATEGORIES
+
+METRIC_KEYS = ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative", "energy_total")
+#: The energies given as a ratio of a row's mean to the reference's mean over the same instances.
+RATIO_KEYS = ("strain", "bend", "energy_total")
+#: What the per-category summaries hold (means over the category's instances, and ratios).
+CATEGORY_KEYS = ("strain", "energy_total", "b2g_percent")
+
+
+def summary(records: list[dict]) -> dict:
+    """Mean of every metric and of the wall time over `records`, and the median wall time."""
+    out = {}
+    for key in METRIC_KEYS + ("wall_s",):
+        values = [r[key] for r in records]
+        out[key] = float(np.mean(values)) if values else math.nan
+    out["wall_s_median"] = float(np.median([r["wall_s"] for r in records])) if records else math.nan
+    return out
+
+
+def with_ratios(summary: dict, reference: dict | None) -> dict:
+    """Adds `<key>_ratio` for the energies of RATIO_KEYS: the summary's mean over the reference's
+    mean over the same instances (NaN without a reference or when its mean is 0)."""
+    for key in RATIO_KEYS:
+        ref = reference[key] if reference else math.nan
+        summary[f"{key}_ratio"] = summary[key] / ref if reference and ref != 0 else math.nan
+    return summary
+
+
+def oracle_summary(records: list[dict]) -> dict:
+    """`summary` plus how many runs converged, the largest final residual, and how many results
+    came from the reference cache."""
+    out = summary(records)
+    out["converged"] = sum(r["converged"] for r in records)
+    out["oracle_residual_max"] = max(r["oracle_residual"] for r in records)
+    out["cached"] = sum(bool(r.get("cached")) for r in records)
+    return out
+
+
+def reference(oracle: list[dict], refined: list[dict]) -> list[dict]:
+    """Per instance the oracle result with the lower E_total (ties: the oracle's), tagged with
+    its source ("oracle" or "oracle_refined"); without refinement, the oracle's own records."""
+    if not refined:
+        return [{**r, "source": "oracle"} for r in oracle]
+    return [{**b, "source": "oracle_refined"} if b["energy_total"] < a["energy_total"] else {**a, "source": "oracle"}
+            for a, b in zip(oracle, refined, strict=True)]
+
+
+def by_category(categories: list[str | None], rows: dict[str, list[dict]], ref: list[dict] | None) -> dict:
+    """Per garment category (those of CATEGORIES present, in that order): the instances in it and,
+    for every row of `rows` ({key: per-instance records, in instance order}), the means of
+    CATEGORY_KEYS over them and their ratios to the reference's means over the same instances.
+    Instances of no category (MakeHuman garments) are in none; no categories: {}."""
+    out = {}
+    for category in CATEGORIES:
+        members = [i for i, c in enumerate(categories) if c == category]
+        if not members:
+            continue
+        ref_means = ({key: float(np.mean([ref[i][key] for i in members])) for key in CATEGORY_KEYS}
+                     if ref else None)
+        table = {}
+        for key, records in rows.items():
+            means = {name: float(np.mean([records[i][name] for i in members])) for name in CATEGORY_KEYS}
+            for name in ("strain", "energy_total"):
+                ref_mean = ref_means[name] if ref_means else math.nan
+                means[f"{name}_ratio"] = means[name] / ref_mean if ref_means and ref_mean != 0 else math.nan
+            table[key] = means
+        out[category] = {"instances": members, "rows": table}
+    return out
