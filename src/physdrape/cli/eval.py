@@ -26,8 +26,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     ablation = dict(args.ablation or [])
     try:
         config = EvalConfig(
-            instances=args.instances, seed=args.seed, oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget,
-            oracle_tol=args.oracle_tol, oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine,
+            instances=args.instances, poses_per_garment=args.poses_per_garment, seed=args.seed,
+            oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget, oracle_tol=args.oracle_tol,
+            oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine,
+            reference_cache=None if args.no_reference_cache else (args.reference_cache or ""),
             split_dir=args.split_dir or "", max_garments=args.max_garments, makehuman_dir=args.makehuman or "",
             makehuman_max_verts=args.makehuman_max_verts, threads=args.threads,
             **({"dtype": args.dtype} if args.dtype else {}),
@@ -49,7 +51,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("eval", help="evaluate a checkpoint: Tables 1–2 vs. the physics oracle")
     p.add_argument("--checkpoint", required=True, help="checkpoint directory (or a run directory: its latest)")
     p.add_argument("--out", required=True, help="output directory for eval.json and eval.md")
-    p.add_argument("--instances", type=int, default=10, help="test instances (garment × seeded shape and pose)")
+    p.add_argument("--instances", type=int, default=None,
+                   help="test instances: the first N of the layout (instance i: test garment i mod G in pose i div G, "
+                        "each on a body of its own seed); default: every test garment, --poses-per-garment times")
+    p.add_argument("--poses-per-garment", type=int, default=1,
+                   help="bodies (shape and pose) per test garment when --instances is not given")
     p.add_argument("--seed", type=int, default=0, help="seed of the body shapes and poses")
     p.add_argument("--oracle-budget", type=float, default=60.0, help="oracle wall-time budget per instance [s]")
     p.add_argument("--oracle-tol", type=float, default=1e-2, help="oracle residual tolerance (|F|/(m g))")
@@ -57,6 +63,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-oracle", action="store_true", help="skip the oracle (no ratio columns)")
     p.add_argument("--no-oracle-refine", action="store_true",
                    help="do not also run the oracle from the PhysDrape (T=15) drape (ratios then use the oracle alone)")
+    cache = p.add_mutually_exclusive_group()
+    cache.add_argument("--reference-cache", metavar="DIR",
+                       help="folder of the oracle results from the skinned start, reused by later evaluations of the "
+                            "same instances and settings (default: ~/.cache/physdrape/eval_reference)")
+    cache.add_argument("--no-reference-cache", action="store_true",
+                       help="run the oracle from the skinned start on every instance, reading and writing no cache")
     p.add_argument("--makehuman", metavar="DIR", help="also evaluate the CC0 MakeHuman garments (.mhclo) in DIR")
     p.add_argument("--makehuman-max-verts", type=int, default=0,
                    help="skip MakeHuman garments with more vertices (0: no cap)")
