@@ -133,6 +133,6 @@ def test_init_from_with_a_zero_output_keeps_the_decoders_last_layer_at_zero(tmp_
             assert not value.any() and base[name].any(), name
         else:
             assert torch.equal(value, base[name]), name
-    batch = tuned.source.make_batch([11, 12])
+    batch = tuned.source.make_batch([11, 12]).drape
     tuned.model.eval()
     torch.testing.assert_close(tuned.model(batch).x, tuned.model.physics_only(batch).x, rtol=0, atol=0)

@@ -32,7 +32,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
-        trainer = Trainer(config, DrapeSource(config.data), args.run_dir)
+        trainer = Trainer(config, DrapeSource(config.data, model=config.model), args.run_dir)
         trainer.run(resume=args.resume)
         if distributed:
             dist.barrier()  # no rank tears gloo down while another still talks to it
@@ -56,7 +56,7 @@ def _train_recipe(args: argparse.Namespace) -> int:
         raise CLIError("a recipe runs in one process; run its stages with --config under torchrun instead")
     if args.threads:
         torch.set_num_threads(args.threads)
-    run_recipe(args.recipe, args.run_dir, source=lambda config: DrapeSource(config.data),
+    run_recipe(args.recipe, args.run_dir, source=lambda config: DrapeSource(config.data, model=config.model),
                command=shlex.join(["physdrape", *sys.argv[1:]]), resume=args.resume)
     return 0
 

@@ -1,32 +1,40 @@
 """Training samples on the real pipeline: garment templates × Anny shapes and poses × materials.
 
-Each sample is fully determined by its seed: which training garment, which posed body of the
-body pool, which material. The body pool (posed, shaped Anny bodies with their skinning
-transforms) is computed once per source, so the body model is not on the training hot path; the
-samples are built by the drape pipeline (`physdrape.pipeline`), which fits each garment's
-skinning transfer once, on first use.
+Each sample is fully determined by its seed. Without an instance cache (`DataConfig.instances`
+empty) the seed draws a training garment, a posed body of the body pool and a material, and the
+drape pipeline (`physdrape.pipeline`) builds the sample, fitting each garment's skinning transfer
+once, on first use; the body pool (posed, shaped Anny bodies with their skinning transforms) is
+computed once per source, so the body model is not on the training hot path. With a cache
+(`physdrape.train.instances`, built on first use) the seed draws one of its instances, whose
+X_init and teacher drape were written once, and a sample costs no skinning at all.
 """
 
 from __future__ import annotations
 
-import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from physdrape.body.pool import BodyPool
 from physdrape.garments.split import SPLIT_FORMAT, load_or_generate
 from physdrape.model import DrapeInput
+from physdrape.model.config import ModelConfig
 from physdrape.physics import Material
+from physdrape.train.materials import sample_material
 from physdrape.pipeline import DrapePipeline, Job, Template
+from physdrape.train.instances import InstanceCache, part_pool
 
-#: HOOD's training ranges (DESIGN.md Sec. 4b).
-MU_RANGE = (1.59e4, 6.36e4)  # Pa, log-uniform
-LAMBDA_RANGE = (3.5e3, 9.33e4)  # Pa, uniform
-K_BEND_RANGE = (6.4e-8, 1.3e-3)  # J, log-uniform
-DENSITY_RANGE = (0.043, 0.7)  # kg/m², uniform
+
+
+@dataclass(frozen=True)
+class TrainingBatch:
+    """A batch of training samples: the model's input and, from an instance cache, the physics
+    teacher's drape of every vertex [m] (ΣV, 3) (None without a cache)."""
+
+    drape: DrapeInput
+    teacher: torch.Tensor | None = None
 
 
 def default_split_dir(seed: int = 0) -> Path:
@@ -41,7 +49,13 @@ class DataConfig:
     those read); split_seed: its seed; subset: "train" or "test"; max_garments: use the first N
     (0 = all); body_pool_size: posed bodies precomputed; body_seed: seed of their shapes and
     poses; materials: "sampled" (HOOD's ranges) or "default"; dtype: of garments and bodies
-    ("float32"/"float64")."""
+    ("float32"/"float64").
+
+    instances: folder of cached instances ("" = none: samples are built on the fly; see
+    `physdrape.train.instances`), built on first use with `instance_count` training and
+    `validation_count` validation instances; validation_garments: the last garments of the subset
+    held out for validation; teacher_steps: two-level solver steps of each instance's teacher drape.
+    """
 
     split_dir: str = ""
     split_seed: int = 0
@@ -51,6 +65,11 @@ class DataConfig:
     body_seed: int = 0
     materials: str = "sampled"
     dtype: str = "float32"
+    instances: str = ""
+    instance_count: int = 512
+    validation_count: int = 8
+    validation_garments: int = 16
+    teacher_steps: int = 100
 
     def __post_init__(self) -> None:
         if self.materials not in ("sampled", "default"):
@@ -61,20 +80,9 @@ class DataConfig:
             raise ValueError(f"DataConfig.max_garments must be ≥ 0 (0 = the whole subset), got {self.max_garments}")
         if self.body_pool_size < 1:
             raise ValueError("DataConfig.body_pool_size must be ≥ 1")
-
-
-def sample_material(rng: np.random.Generator) -> Material:
-    """A fabric from HOOD's ranges (μ, k_bend log-uniform; λ, density uniform)."""
-
-    def log_uniform(lo: float, hi: float) -> float:
-        return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-
-    return Material(
-        mu=log_uniform(*MU_RANGE),
-        lam=float(rng.uniform(*LAMBDA_RANGE)),
-        k_bend=log_uniform(*K_BEND_RANGE),
-        density=float(rng.uniform(*DENSITY_RANGE)),
-    )
+        if self.instance_count < 1 or self.validation_count < 0 or self.validation_garments < 0 or self.teacher_steps < 1:
+            raise ValueError("DataConfig needs instance_count ≥ 1, validation_count ≥ 0, validation_garments ≥ 0 "
+                             "and teacher_steps ≥ 1")
 
 
 def load_templates(config: DataConfig, *, workers: int | None = None) -> list[Template]:
@@ -90,10 +98,14 @@ def load_templates(config: DataConfig, *, workers: int | None = None) -> list[Te
 
 
 class DrapeSource:
-    """`SampleSource` of the real pipeline (see the module docstring)."""
+    """`SampleSource` of the real pipeline (see the module docstring).
 
-    def __init__(self, config: DataConfig = DataConfig(), *, body=None,
-                 templates: list[Template] | None = None) -> None:
+    model: the config of the model being trained; with an instance cache, its contact term is the
+    teacher's (`physdrape.train.instances.teacher_solver`).
+    """
+
+    def __init__(self, config: DataConfig = DataConfig(), *, model: ModelConfig = ModelConfig(), body=None,
+                 templates: list[Template] | None = None, log=sys.stderr) -> None:
         from physdrape.body.anny_body import get_anny_body
 
         self.config = config
@@ -102,11 +114,26 @@ class DrapeSource:
         self.templates = templates if templates is not None else load_templates(config)
         if not self.templates:
             raise ValueError("no garment templates to train on: check DataConfig.split_dir / subset / max_garments")
-        self.pool = BodyPool(self.body, config.body_pool_size, seed=config.body_seed, dtype=self.dtype)
+        self.pool = part_pool(self.body, config, "train")
         self.pipeline = DrapePipeline(self.body, dtype=self.dtype)
+        self.cache = self.validation_pool = None
+        if config.instances:
+            self.cache = InstanceCache(config.instances, config, model)
+            self.validation_pool = part_pool(self.body, config, "val")
+            self.cache.build(self.templates, self.body, {"train": self.pool, "val": self.validation_pool},
+                             {"train": config.instance_count, "val": config.validation_count}, log=log)
+            self._train = self.cache.part("train")[:config.instance_count]
+            self._tensors = [self.cache.tensors("train", i) for i in range(len(self._train))]
 
-    def make_batch(self, seeds: list[int]) -> DrapeInput:
-        """The samples of `seeds`: each seed draws a training garment, a pool body and a material."""
+    def make_batch(self, seeds: list[int]) -> TrainingBatch:
+        """The samples of `seeds`: each seed draws a cached instance, or else a training garment,
+        a pool body and a material."""
+        if self.cache is not None:
+            picks = [int(np.random.default_rng(seed).integers(len(self._train))) for seed in seeds]
+            jobs = [Job(self.templates[self._train[i].garment], k, Material(**self._train[i].material),
+                        self._tensors[i][0]) for k, i in enumerate(picks)]
+            drape = self.pipeline.build(jobs, self.pool.state([self._train[i].body for i in picks]))
+            return TrainingBatch(drape, torch.cat([self._tensors[i][1] for i in picks]).to(self.dtype))
         jobs, body_ids = [], []
         for k, seed in enumerate(seeds):
             rng = np.random.default_rng(seed)
@@ -114,4 +141,16 @@ class DrapeSource:
             body_ids.append(int(rng.integers(len(self.pool))))
             material = sample_material(rng) if self.config.materials == "sampled" else Material()
             jobs.append(Job(self.templates[g], k, material))
-        return self.pipeline.build(jobs, self.pool.state(body_ids))
+        return TrainingBatch(self.pipeline.build(jobs, self.pool.state(body_ids)))
+
+    def validation(self) -> list[TrainingBatch]:
+        """The cache's validation instances, one batch each (empty without a cache)."""
+        if self.cache is None:
+            return []
+        instances = self.cache.part("val")[:self.config.validation_count]
+        out = []
+        for i, inst in enumerate(instances):
+            x_init, teacher = self.cache.tensors("val", i)
+            job = Job(self.templates[inst.garment], 0, Material(**inst.material), x_init)
+            out.append(TrainingBatch(self.pipeline.build([job], self.validation_pool.state(inst.body)), teacher.to(self.dtype)))
+        return out

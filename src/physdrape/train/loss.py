@@ -1,4 +1,5 @@
-"""The self-supervised loss (paper Sec. 3.6): L = E_strain + E_bend + E_coll + E_grav at X*."""
+"""The self-supervised loss (paper Sec. 3.6): L = E_strain + E_bend + E_coll + E_grav at X*, plus
+optionally a pull toward the physics teacher's drape (`physdrape.train.instances`)."""
 
 from __future__ import annotations
 
@@ -22,13 +23,22 @@ class LossConfig:
 
     The contact term's stiffness k_c and margin ε are the model's (`ModelConfig.contact_stiffness`,
     `ModelConfig.margin`), so the loss and the solver's contact term are one term.
+
+    teacher_weight [J/m²]: adds, per garment, teacher_weight × the mass-weighted mean squared
+    distance [m²] of the drape to the teacher's (the two-level solver run to near convergence
+    from the same X_init). The energy alone tells each vertex which way is downhill; the teacher
+    also says how far the garment as a whole still has to settle, which a few solver steps in the
+    loop cannot show. 0 = the paper's loss (and no teacher needed).
     """
 
     per_garment_scale: str = "none"
+    teacher_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if self.per_garment_scale not in ("none", "initial"):
             raise ValueError(f"LossConfig.per_garment_scale must be 'none' or 'initial', got {self.per_garment_scale!r}")
+        if not self.teacher_weight >= 0:
+            raise ValueError(f"LossConfig.teacher_weight must be ≥ 0 [J/m²], got {self.teacher_weight!r}")
 
 
 def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, *, contact_stiffness: float,
@@ -48,13 +58,22 @@ def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Ten
     }
 
 
+def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth) -> Tensor:
+    """Mass-weighted mean squared distance of x to the teacher drape per garment [m²] (G,)."""
+    weighted = cloth.mass * (x - teacher).pow(2).sum(-1)
+    return cloth.sum_per_garment(weighted, cloth.vert_garment) / cloth.sum_per_garment(cloth.mass, cloth.vert_garment)
+
+
 def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig,
-               x_init: Tensor | None = None, *, contact_stiffness: float, margin: float) -> tuple[Tensor, dict[str, Tensor]]:
+               x_init: Tensor | None = None, *, contact_stiffness: float, margin: float,
+               teacher: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
     """The training loss: the sum of the terms per garment (divided by the garment's scale when
-    `config.per_garment_scale` is "initial", which needs x_init), averaged over the batch.
+    `config.per_garment_scale` is "initial", which needs x_init), plus the teacher term when
+    `config.teacher_weight` > 0 (which needs `teacher`, (ΣV, 3) [m]), averaged over the batch.
     contact_stiffness [J/m³], margin [m]: the contact term's k_c and ε (see `drape_energies`).
 
-    Returns the scalar loss and the batch-mean of each term [J] (detached) for logging.
+    Returns the scalar loss and the batch-mean of each term [J] (detached) for logging, with the
+    teacher distance as "teacher_rms" [m] when a teacher is given.
     """
     contact = {"contact_stiffness": contact_stiffness, "margin": margin}
     terms = drape_energies(x, cloth, bodies, body_index, **contact)
@@ -67,4 +86,13 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
             weight = cloth.sum_per_garment(cloth.mass, cloth.vert_garment) * cloth.gravity.norm(dim=-1)
             scale = start["strain"] + start["bend"] + start["collision"] + 0.01 * weight
         total = total / scale
-    return total.mean(), {name: value.detach().mean() for name, value in terms.items()}
+    logged = {name: value.detach().mean() for name, value in terms.items()}
+    if config.teacher_weight > 0 and teacher is None:
+        raise ValueError("LossConfig.teacher_weight > 0 needs the teacher drapes of an instance cache: set "
+                         "data.instances to a folder (built on first use)")
+    if teacher is not None:
+        distance = teacher_distance(x, teacher, cloth)
+        logged["teacher_rms"] = distance.detach().mean().sqrt()
+        if config.teacher_weight > 0:
+            total = total + config.teacher_weight * distance
+    return total.mean(), logged

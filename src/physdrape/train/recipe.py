@@ -93,7 +93,7 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
                command: str, resume: bool = False, log=print) -> dict:
     """Train the recipe's stages in order into run_dir (see the module docstring); returns the record.
 
-    source: builds the sample source of a stage from its config (the CLI: `DrapeSource(config.data)`).
+    source: builds the sample source of a stage from its config (the CLI: `DrapeSource(config.data, model=config.model)`).
     """
     recipe = load_recipe(recipe_path)
     run_dir = Path(run_dir)

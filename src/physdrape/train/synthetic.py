@@ -17,6 +17,7 @@ from physdrape.geometry.primitives import open_cylinder
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
+from physdrape.train.data import TrainingBatch
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,7 @@ class SyntheticSource:
         self.unit_sphere = torch.tensor(np.asarray(sphere.vertices), dtype=dtype)
         self.sphere_faces = torch.tensor(np.asarray(sphere.faces))
 
-    def make_batch(self, seeds: list[int]) -> DrapeInput:
+    def make_batch(self, seeds: list[int]) -> TrainingBatch:
         garments, materials, radii = [], [], []
         for seed in seeds:
             rng = np.random.default_rng(seed)
@@ -53,4 +54,9 @@ class SyntheticSource:
             radii.append(radius)
         batch = GarmentBatch.pack(garments)
         bodies = BodySurface(torch.stack([self.unit_sphere * r for r in radii]), self.sphere_faces)
-        return DrapeInput(batch, Cloth.build(batch, materials), batch.rest.clone(), bodies, batch.vert_garment)
+        return TrainingBatch(DrapeInput(batch, Cloth.build(batch, materials), batch.rest.clone(), bodies,
+                                        batch.vert_garment))
+
+    def validation(self) -> list[TrainingBatch]:
+        """No validation set: the tubes have no teacher drapes."""
+        return []

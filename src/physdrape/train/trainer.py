@@ -20,17 +20,20 @@ import torch.distributed as dist
 from physdrape.atomic import write_text
 from physdrape.config_io import to_mapping
 from physdrape.physics.metrics import b2g_percent
-from physdrape.model import DrapeInput, ModelConfig, PhysDrape
+from physdrape.model import ModelConfig, PhysDrape
 from physdrape.model.stretching_solver import SolverKind
 from physdrape import checkpoint as ckpt
-from physdrape.train.data import DataConfig
+from physdrape.train.data import DataConfig, TrainingBatch
 from physdrape.train.loss import LossConfig, drape_loss
 
 
 class SampleSource(Protocol):
-    """Builds a batch of draping problems, each sample fully determined by its seed."""
+    """Builds a batch of draping problems, each sample fully determined by its seed, and names a
+    fixed validation set (empty: no held-out curve)."""
 
-    def make_batch(self, seeds: list[int]) -> DrapeInput: ...
+    def make_batch(self, seeds: list[int]) -> TrainingBatch: ...
+
+    def validation(self) -> list[TrainingBatch]: ...
 
 
 @dataclass(frozen=True)
@@ -38,7 +41,9 @@ class OptimConfig:
     """steps: optimiser steps in all; batch_size: global batch (garments per step, all ranks);
     lr: Adam's initial learning rate (paper 5e-5), decayed exponentially to lr·lr_final_ratio;
     grad_clip: max global gradient norm; seed: of the sample stream and the initial weights;
-    checkpoint_every / log_every: in steps; keep_checkpoints: newest checkpoints kept;
+    checkpoint_every / log_every: in steps; validate_every: steps between held-out validations
+    (`physdrape.train.validation`, on the source's validation set; 0 = never); keep_checkpoints:
+    newest checkpoints kept;
     init_from: a checkpoint (directory with model.safetensors + config.json, or a run directory)
     whose weights and input statistics start a fresh run instead of random weights and the
     statistics warm-up (fine-tuning); "" = none. Ignored on --resume."""
@@ -51,6 +56,7 @@ class OptimConfig:
     seed: int = 0
     checkpoint_every: int = 100
     log_every: int = 10
+    validate_every: int = 0
     keep_checkpoints: int = 3
     init_from: str = ""
 
@@ -164,14 +170,14 @@ class Trainer:
                 f"levels and variant: {exc}") from exc
 
     def _truncate_metrics(self) -> None:
-        """Drop metric lines logged after the checkpoint we resume from (they will be redone)."""
-        path = self.run_dir / "metrics.jsonl"
-        if self.rank == 0 and path.is_file():
-            kept = [line for line in path.read_text().splitlines() if line and json.loads(line)["step"] <= self.step]
-            write_text(path, "".join(line + "\n" for line in kept))
+        """Drop metric and validation lines logged after the checkpoint we resume from (they will be redone)."""
+        for path in (self.run_dir / "metrics.jsonl", self.run_dir / "validation.jsonl"):
+            if self.rank == 0 and path.is_file():
+                kept = [line for line in path.read_text().splitlines() if line and json.loads(line)["step"] <= self.step]
+                write_text(path, "".join(line + "\n" for line in kept))
 
     # ----------------------------------------------------------------------------- loop
-    def _local_batch(self) -> DrapeInput:
+    def _local_batch(self) -> TrainingBatch:
         seeds = _draw_seeds(self.generator, self.config.optim.batch_size)
         local = self.config.optim.batch_size // self.world
         return self.source.make_batch(seeds[self.rank * local:(self.rank + 1) * local])
@@ -179,7 +185,7 @@ class Trainer:
     def warm_up_normalizers(self) -> None:
         """Statistics-only warm-up (no optimiser steps); ranks all-reduce their sums."""
         for _ in range(self.config.model.normalizer_accumulations):
-            self.model.accumulate_statistics(self._local_batch())
+            self.model.accumulate_statistics(self._local_batch().drape)
         if self.world > 1:
             for norm in (self.model.node_normalizer, self.model.edge_normalizer):
                 for name in ("count", "sum", "sum_squares"):
@@ -188,10 +194,12 @@ class Trainer:
     def train_step(self) -> dict[str, float]:
         model = self.ddp or self.model
         model.train()
-        batch = self._local_batch()
+        sample = self._local_batch()
+        batch = sample.drape
         out = model(batch)
         loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init,
-                                 contact_stiffness=self.config.model.contact_stiffness, margin=self.config.model.margin)
+                                 contact_stiffness=self.config.model.contact_stiffness, margin=self.config.model.margin,
+                                 teacher=sample.teacher)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)
@@ -203,6 +211,19 @@ class Trainer:
         return {"loss": float(loss.detach()), **{k: float(v) for k, v in terms.items()}, "b2g_percent": float(b2g),
                 "grad_norm": float(grad_norm), "lr": self.scheduler.get_last_lr()[0], "eta": float(self.model.solver.eta.detach()),
                 "gamma": float(self.model.solver.gamma.detach()), "delta": float(self.model.handler.delta.detach())}
+
+    def _validate(self, validator, writer) -> None:
+        """One held-out validation (`physdrape.train.validation`), appended to validation.jsonl
+        and TensorBoard's val/ scalars."""
+        t0 = time.perf_counter()
+        record = {"step": self.step, **validator(self.model), "wall_s": 0.0}
+        record["wall_s"] = time.perf_counter() - t0
+        with open(self.run_dir / "validation.jsonl", "a") as handle:
+            handle.write(json.dumps(record) + "\n")
+        if writer is not None:
+            for key, value in record.items():
+                if key != "step":
+                    writer.add_scalar(f"val/{key}", value, self.step)
 
     def run(self, *, resume: bool = False, until: int | None = None) -> list[dict]:
         """Train to `optim.steps` (or stop early at step `until`, as an interruption would);
@@ -229,6 +250,14 @@ class Trainer:
         metrics_path = self.run_dir / "metrics.jsonl"
         self.run_dir.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
+        every = self.config.optim.validate_every
+        validator = None
+        if self.rank == 0 and every:
+            from physdrape.train.validation import Validator
+
+            validator = Validator(self.source.validation())
+            if self.step == 0:
+                self._validate(validator, writer)
         try:
             stop = self.config.optim.steps if until is None else min(until, self.config.optim.steps)
             while self.step < stop:
@@ -247,6 +276,8 @@ class Trainer:
                     if bar is not None:
                         bar.update(1)
                         bar.set_postfix(loss=f"{record['loss']:.4g}", b2g=f"{record['b2g_percent']:.2f}%")
+                if validator is not None and (self.step % every == 0 or self.step == stop):
+                    self._validate(validator, writer)
                 if self.step % self.config.optim.checkpoint_every == 0 or self.step == stop:
                     self.save()
         finally:
