@@ -22,6 +22,7 @@ manifest after its instance files, so an interrupted build resumes where it stop
 
 from __future__ import annotations
 
+import fcntl
 import json
 import sys
 import time
@@ -137,9 +138,19 @@ class InstanceCache:
             raise InstanceCacheError(
                 f"data.validation_garments is {held_out} but the training subset has {len(templates)} garments: "
                 "it must hold out at least one garment and leave at least one to train on")
-        missing = {p: counts[p] - len(self.manifest["parts"][p]) for p in PARTS}
-        if all(n <= 0 for n in missing.values()):
+        if all(counts[p] <= len(self.manifest["parts"][p]) for p in PARTS):
             return
+        self.directory.mkdir(parents=True, exist_ok=True)
+        with open(self.directory / ".lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # another run building the same cache waits, then reads its work
+            path = self.directory / "manifest.json"
+            if path.is_file():
+                self.manifest = json.loads(path.read_text())
+            self._build(templates, body, pools, counts, log)
+
+    def _build(self, templates: list[Template], body, pools: dict[str, BodyPool], counts: dict[str, int], log) -> None:
+        held_out = self.data.validation_garments
+        missing = {p: counts[p] - len(self.manifest["parts"][p]) for p in PARTS}
         dtype = getattr(torch, self.data.dtype)
         pipeline = DrapePipeline(body, dtype=dtype)
         solver = teacher_solver(self.model)

@@ -1,0 +1,115 @@
+"""The network's cost per garment: one GNN pass, and its graph inputs, no physics, one thread.
+
+Run: .venv/bin/python bench/bench_network.py [--repeats 15] [--verts 4000]
+    [--sizes 32x4 32x9l4 48x9l4 64x9l4 32x17l4] [--out results/bench_network]
+(a size is latent x blocks, optionally l + coarse graph levels: with levels the blocks walk
+V-cycles over the coarse graphs, `physdrape.model.gnn.level_schedule`).
+
+The garment is an open tube of about `--verts` vertices around an icosphere body of ~10k
+vertices. Every size is timed in one run, interleaved round by round so that a change in the
+machine's load hits all of them alike; the table gives each size's median over the rounds, its
+ratio to the first size, the parameters, the graph reach (the mesh edges one network pass
+spans, `reach`) and, apart, the graph inputs (body query, node and edge features; the same work
+for every size). Writes <out>.md and <out>.json with the command, the commit and the load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import statistics
+import sys
+import time
+
+import torch
+from bench_model import problem
+
+from physdrape.atomic import write_text
+from physdrape.eval.report import provenance
+from physdrape.model import ModelConfig, PhysDrape
+from physdrape.model.gnn import level_schedule
+
+
+def reach(blocks: int, levels: int) -> int:
+    """Mesh edges spanned by one pass: a level-l block passes a message about 2^l mesh edges."""
+    return sum(2 ** level for level in level_schedule(blocks, levels))
+
+
+def parse(size: str) -> tuple[int, int, int]:
+    dims, _, levels = size.partition("l")
+    latent, blocks = (int(v) for v in dims.split("x"))
+    return latent, blocks, int(levels or 0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--verts", type=int, default=4000)
+    parser.add_argument("--sizes", nargs="+", default=["32x4", "32x9l4", "48x9l4", "64x9l4", "32x17l4"])
+    parser.add_argument("--out", default="results/bench_network")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    batch = problem(1, args.verts)
+    models = {}
+    for size in args.sizes:
+        latent, blocks, levels = parse(size)
+        torch.manual_seed(0)
+        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels)).eval()
+        model.accumulate_statistics(batch)
+        models[size] = model
+
+    def network(model: PhysDrape) -> tuple[float, float]:
+        """(graph inputs, GNN pass) wall times [ms]."""
+        with torch.no_grad():
+            t0 = time.perf_counter()
+            nodes, edges, graph = model.graph_inputs(batch)
+            t1 = time.perf_counter()
+            model.gnn(model.node_normalizer(nodes), model.edge_normalizer(edges), graph)
+            t2 = time.perf_counter()
+        return 1e3 * (t1 - t0), 1e3 * (t2 - t1)
+
+    for model in models.values():
+        network(model)  # warm-up: coarse graphs are built and cached per topology
+    inputs = {size: [] for size in models}
+    gnn = {size: [] for size in models}
+    for _ in range(args.repeats):
+        for size, model in models.items():
+            a, b = network(model)
+            inputs[size].append(a)
+            gnn[size].append(b)
+    first = statistics.median(gnn[args.sizes[0]])
+    rows = []
+    for size, model in models.items():
+        latent, blocks, levels = parse(size)
+        median = statistics.median(gnn[size])
+        rows.append({"size": size, "latent": latent, "blocks": blocks, "levels": levels,
+                     "params": sum(p.numel() for p in model.parameters()), "reach_edges": reach(blocks, levels),
+                     "inputs_median_ms": statistics.median(inputs[size]), "gnn_median_ms": median,
+                     "gnn_min_ms": min(gnn[size]), "gnn_max_ms": max(gnn[size]), "gnn_ratio_to_first": median / first})
+    command = shlex.join(["python", *sys.argv])
+    record = {"command": command, "provenance": provenance(), "load_average": os.getloadavg(),
+              "garment_verts": batch.garments.num_verts, "body_verts": batch.bodies.num_verts,
+              "threads": 1, "repeats": args.repeats, "rows": rows}
+    lines = ["# The network's cost per garment (GNN pass and graph inputs, no physics, 1 thread)", "",
+             f"Command: `{command}`  ", f"Git commit: `{record['provenance']['git_commit']}`"
+             + (" (with uncommitted changes)" if record["provenance"]["git_dirty"] else "") + "  ",
+             f"Garment: {record['garment_verts']} vertices; body: {record['body_verts']} vertices; "
+             f"median of {args.repeats} interleaved rounds; load average "
+             + ", ".join(f"{v:.2f}" for v in record["load_average"]), "",
+             "| size (D×L, levels) | params | reach [mesh edges] | GNN median [ms] | GNN min–max [ms] | GNN ratio "
+             "| graph inputs median [ms] |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['latent']}×{r['blocks']}, {r['levels']} | {r['params']:,} | {r['reach_edges']} | "
+                     f"{r['gnn_median_ms']:.1f} | {r['gnn_min_ms']:.1f}–{r['gnn_max_ms']:.1f} | "
+                     f"{r['gnn_ratio_to_first']:.2f} | {r['inputs_median_ms']:.1f} |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    write_text(f"{args.out}.md", text)
+    write_text(f"{args.out}.json", json.dumps(record, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
