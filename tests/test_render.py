@@ -16,17 +16,21 @@ from physdrape.physics.material import Material
 from physdrape.physics.presets import MATERIAL_PRESETS
 from physdrape.render import FABRIC_RGB, compose_gallery, fabric_color, material_sweep_figure, render_result
 from physdrape.render.colors import stiffness_coordinate
-from physdrape.render.figures import PAD
+from physdrape.render.figures import HEM_RGB, PAD
+from physdrape.render.hem import hem_azimuth, hem_drop, hem_loop
 from physdrape.render.layout import text_width
+from physdrape.render.raster import project, render_view
 
 HEIGHT = 1.7  # body height [m]
 
 
-def _tube(radius: float, y0: float, y1: float, *, segments: int = 24, rings: int = 6):
-    """An open cylinder about the y axis: verts (V, 3), faces (F, 3)."""
+def _tube(radius: float, y0: float, y1: float, *, segments: int = 24, rings: int = 6, top_radius: float | None = None):
+    """An open cylinder (a cone frustum with `top_radius`) about the y axis from y0 (radius) to y1:
+    verts (V, 3), faces (F, 3)."""
     t = np.linspace(0, 2 * np.pi, segments, endpoint=False)
     ys = np.linspace(y0, y1, rings)
-    verts = np.array([[radius * np.cos(a), y, radius * np.sin(a)] for y in ys for a in t])
+    radii = np.linspace(radius, radius if top_radius is None else top_radius, rings)
+    verts = np.array([[r * np.cos(a), y, r * np.sin(a)] for y, r in zip(ys, radii) for a in t])
     faces = []
     for r in range(rings - 1):
         for s in range(segments):
@@ -35,15 +39,19 @@ def _tube(radius: float, y0: float, y1: float, *, segments: int = 24, rings: int
     return verts, np.array(faces)
 
 
-def _result(material: Material = MATERIAL_PRESETS["cotton"], name: str = "tube", pose: str = "stand"):
+def _result(material: Material = MATERIAL_PRESETS["cotton"], name: str = "tube", pose: str = "stand", *,
+            drop: float = 0.0):
+    """A drape-result stand-in: a flared tube (the hem at y = 0.8 m at X_init) on a capsule body,
+    dropped by `drop` [m] from its X_init."""
     import trimesh
 
     body = trimesh.creation.capsule(height=HEIGHT - 0.3, radius=0.15, count=[16, 16])
     body.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
     body.apply_translation([0.0, HEIGHT / 2, 0.0])  # standing, feet at y = 0, head at y = HEIGHT
-    verts, faces = _tube(0.2, 0.8, 1.4)
+    x_init, faces = _tube(0.22, 0.8, 1.4, top_radius=0.18)
+    verts = x_init - np.array([0.0, drop, 0.0])
     return SimpleNamespace(
-        name=name, pose=pose, verts=verts, faces=faces, body_verts=np.asarray(body.vertices),
+        name=name, pose=pose, verts=verts, faces=faces, x_init=x_init, body_verts=np.asarray(body.vertices),
         body_faces=np.asarray(body.faces), material=material, vertex_residual=np.full(len(verts), 0.1),
         inside_faces=np.zeros(len(faces), bool),
         metrics={"strain": 1e-3, "bend": 2e-4, "b2g_percent": 0.0, "mean_y": 1.1})
@@ -121,10 +129,63 @@ def test_material_captions_do_not_overlap(tmp_path):
     results = [_result(m) for m in MATERIAL_PRESETS.values()]
     path = material_sweep_figure(results, list(MATERIAL_PRESETS), tmp_path / "m.png", size=48)
     width = mpimg.imread(path).shape[1]
-    widest = max(text_width(f"E_strain {1e-3:.3g} J · mean y 110.0 cm", 10.0), text_width("μ 63 kPa · λ 90 kPa", 10.0))
+    widest = max(text_width(f"E_bend {2e-4:.3g} J · E_strain {1e-3:.3g} J", 10.0), text_width("μ 63 kPa · λ 90 kPa", 10.0),
+                 text_width("hem drop 0.00 cm (spread 0.00)", 10.0))
     assert width >= len(results) * widest, "each panel is at least as wide as its captions"
     with pytest.raises(ValueError, match="one label per result"):
         material_sweep_figure(results, ["silk"], tmp_path / "x.png", size=48)
+
+
+def test_hem_is_the_longest_opening_and_its_drop_is_measured_from_x_init():
+    x_init, faces = _tube(0.22, 0.8, 1.4, top_radius=0.18, segments=24, rings=6)
+    hem = hem_loop(faces, x_init)
+    assert len(hem) == 24 and np.allclose(x_init[hem, 1], 0.8), "the wider (lower) opening is the hem"
+    top = hem_loop(faces, x_init * np.array([1.0, -1.0, 1.0]))  # flipped upside down: the wide end is still the hem
+    np.testing.assert_array_equal(np.sort(top), np.sort(hem))
+    even, even_faces = _tube(0.2, 0.8, 1.4)
+    assert np.allclose(even[hem_loop(even_faces, even), 1], 0.8), "equal openings: the lower one"
+    verts = x_init.copy()
+    verts[hem, 1] -= np.where(np.arange(len(hem)) % 2 == 0, 0.01, 0.03)  # a rippled hem, 2 cm down on average
+    drop = hem_drop(verts, x_init, hem)
+    assert drop.mean == pytest.approx(0.02) and drop.spread == pytest.approx(0.01)
+    assert hem_drop(x_init + np.array([0.5, -0.04, 0.2]), x_init, hem).mean == pytest.approx(0.04)
+    azimuth = hem_azimuth(x_init, hem)
+    front = hem[np.argmin(np.abs(azimuth))]
+    assert x_init[front, 2] == pytest.approx(x_init[hem, 2].max()), "azimuth 0 is the front (+z)"
+    with pytest.raises(ValueError, match="no opening"):
+        hem_loop(np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]), np.eye(4, 3))
+
+
+def test_projection_lands_on_the_rendered_mesh():
+    res = _result()
+    frame, size, yaw = (-0.5, 0.5, 0.0, HEIGHT), 96, 30.0
+    img = render_view([{"verts": res.body_verts, "faces": res.body_faces, "colors": (0.2, 0.2, 0.2)}], yaw_deg=yaw,
+                      size=size, frame=frame)
+    body = _content(img)
+    pix = project(res.body_verts, yaw_deg=yaw, size=size, frame=frame)
+    rows, cols = np.flatnonzero(body.any(1)), np.flatnonzero(body.any(0))
+    assert abs(pix[:, 1].min() - rows[0]) <= 1.5 and abs(pix[:, 1].max() - (rows[-1] + 1)) <= 1.5
+    assert abs(pix[:, 0].min() - cols[0]) <= 1.5 and abs(pix[:, 0].max() - (cols[-1] + 1)) <= 1.5
+
+
+def _gold(img: np.ndarray) -> np.ndarray:
+    return (np.abs(img[..., :3] - np.array(HEM_RGB)) < 0.15).all(-1)
+
+
+def test_sweep_marks_each_hem_where_it_hangs(tmp_path):
+    size, drop = 160, 0.08
+    results = [_result(MATERIAL_PRESETS["silk"]), _result(MATERIAL_PRESETS["leather"], drop=drop)]
+    img = mpimg.imread(material_sweep_figure(results, ["silk", "leather"], tmp_path / "m.png", size=size))
+    top = PAD + 30  # the views' band starts under the title
+    views = img[top - 10:top + size + 10]
+    gold = _gold(views)
+    half = views.shape[1] // 2
+    rows = [np.flatnonzero(gold[:, :half].any(1)), np.flatnonzero(gold[:, half:].any(1))]
+    assert all(r.size for r in rows), "each panel shows its hem line"
+    frame = np.array([a for a in (results[0].verts, results[1].verts)]).reshape(-1, 3)
+    expected = drop * size / (1.06 * (HEIGHT - (frame[:, 1].min() - 0.12)))  # drop [m] × px per m of the shared frame
+    assert np.median(rows[1]) - np.median(rows[0]) == pytest.approx(expected, rel=0.3)
+    assert _gold(img[top + size + 10:]).sum() == 0, "captions and chart carry no hem line"
 
 
 def test_batch_gallery_has_a_tile_per_garment(tmp_path):

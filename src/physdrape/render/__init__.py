@@ -4,7 +4,8 @@
   garment in its fabric's colour, `fabric_color`) or "residual" (the per-vertex residual force
   ‖F_int‖/(m g) as a heatmap, faces whose centroid is inside the body in red; the paper's Fig. 1).
 - `convergence_figure`: energy and total force over the stretching solver steps (paper Fig. 3).
-- `material_sweep_figure`: the same garment and pose in several fabrics side by side (Fig. 6).
+- `material_sweep_figure`: the same garment and pose in several fabrics side by side (Fig. 6), each
+  hem marked and captioned with its drop (`physdrape.render.hem`), the hems' profiles on one chart.
 - `compose_gallery`: those PNGs tiled, and for a batch every garment's render in a grid below
   (``physdrape drape --figures`` writes gallery.png; docs/gallery.png is that file from
   ``physdrape drape --pose stand --figures --out /tmp/gallery`` with the bundled model).

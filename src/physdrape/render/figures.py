@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from physdrape.render.colors import BODY_RGB, PENETRATION_RGB, fabric_color, material_caption
+from physdrape.render.hem import hem_azimuth, hem_drop, hem_loop
 from physdrape.render.layout import Canvas, line_height, text_width
-from physdrape.render.raster import render_view, yaw_rotation
+from physdrape.render.raster import project, render_view, yaw_rotation
 
 __all__ = ["compose_gallery", "convergence_figure", "full_frame", "garment_frame", "material_sweep_figure",
            "render_result"]
@@ -23,6 +24,7 @@ __all__ = ["compose_gallery", "convergence_figure", "full_frame", "garment_frame
 PAD, GAP = 12, 16  # outer margin, space between panels [px]
 TITLE_PT, TEXT_PT = 12.0, 10.0  # font sizes [pt]
 VIEW_NAMES = {0.0: "front", 180.0: "back"}
+HEM_RGB = (1.0, 0.80, 0.0)  # the hem line: gold, outlined in black
 
 
 def full_frame(result, yaw_deg: float) -> tuple[float, float, float, float]:
@@ -154,35 +156,88 @@ def convergence_figure(result, path: str | os.PathLike) -> Path:
     return path
 
 
+def _hem_line(ax, result, hem: np.ndarray, *, yaw_deg: float, size: int, frame) -> None:
+    """Draw the hem of `result` on the image axes `ax` of its view: solid where it faces the camera,
+    dotted behind the body."""
+    from matplotlib import patheffects
+
+    p = project(np.asarray(result.verts)[hem], yaw_deg=yaw_deg, size=size, frame=frame)
+    loop = np.append(np.arange(len(hem)), 0)
+    xy = p[loop, :2] - 0.5  # imshow puts pixel k's centre at k
+    front = p[loop, 2] >= p[:, 2].mean()
+    outline = [patheffects.withStroke(linewidth=3.2, foreground="black")]
+    back = np.where(~front[:, None], xy, np.nan)
+    ax.plot(back[:, 0], back[:, 1], ":", color=HEM_RGB, linewidth=1.0, alpha=0.7)
+    near = np.where(front[:, None], xy, np.nan)
+    ax.plot(near[:, 0], near[:, 1], "-", color=HEM_RGB, linewidth=1.6, path_effects=outline)
+
+
+def _hem_profile(canvas: Canvas, results: Sequence, labels: Sequence[str], hems: list, box) -> None:
+    """Each result's hem height relative to X_init [cm] against azimuth around the body, in its
+    fabric colour, on one axes at pixel box (x, y, w, h)."""
+    ax = canvas.fig.add_axes(canvas.rect(*box))
+    for r, label, hem in zip(results, labels, hems):
+        azimuth = hem_azimuth(r.x_init, hem)
+        order = np.argsort(azimuth)
+        azimuth, height = azimuth[order], -100.0 * hem_drop(r.verts, r.x_init, hem).drop[order]
+        azimuth = np.concatenate([azimuth[-1:] - 360.0, azimuth, azimuth[:1] + 360.0])  # closed around the back
+        height = np.concatenate([height[-1:], height, height[:1]])
+        ax.plot(azimuth, height, color=fabric_color(r.material), linewidth=1.4, label=str(label))
+    ax.axhline(0.0, color="0.5", linewidth=0.8, linestyle="--")
+    ax.set_xlim(-180, 180)
+    ax.set_xticks([-180, -90, 0, 90, 180], ["back", "wearer's right (−x)", "front (+z)", "wearer's left (+x)", "back"],
+                  fontsize=8)
+    ax.tick_params(labelsize=8)
+    ax.set_ylabel("hem height − X_init [cm]", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=min(len(results), 4), loc="upper center", frameon=False)
+
+
 def material_sweep_figure(results: Sequence, labels: Sequence[str], path: str | os.PathLike, *, size: int = 480,
-                          yaw_deg: float = 30.0) -> Path:
+                          yaw_deg: float = 30.0, note: str | None = None) -> Path:
     """The same garment and pose in several materials side by side: one view each in one shared frame
-    (head to below the hem), each `size` px high and captioned below with its label, fabric colour,
-    key constants, strain energy and the garment's mean height."""
+    (head to below the hem), each `size` px high, its hem (`render.hem`) marked, and captioned below
+    with its label, fabric colour, key constants, hem drop and bending and strain energies; under
+    the views, the hems' height profiles on one chart. `note` is added to the title (e.g. how the
+    drapes were made)."""
     if len(results) != len(labels) or not results:
         raise ValueError(f"give one label per result (got {len(labels)} labels for {len(results)} results)")
     frames = np.array([garment_frame(r, yaw_deg) for r in results])
     frame = (frames[:, 0].min(), frames[:, 1].max(), frames[:, 2].min(), frames[:, 3].max())
     images = [render_view(_meshes(r, "shaded"), yaw_deg=yaw_deg, size=size, frame=frame) for r in results]
+    hems = [hem_loop(r.faces, r.x_init) for r in results]
     swatch = line_height(TITLE_PT) - 5
     captions = []
-    for r, label in zip(results, labels):
+    for r, label, hem in zip(results, labels, hems):
         _, constants = material_caption(r.material)
-        measured = f"E_strain {r.metrics['strain']:.3g} J · mean y {float(np.mean(r.verts[:, 1])) * 100:.1f} cm"
+        drop = hem_drop(r.verts, r.x_init, hem)
         captions.append([(str(label), TITLE_PT, True), *((c, TEXT_PT, False) for c in constants),
-                         (measured, TEXT_PT, False)])
+                         (f"hem drop {100 * drop.mean:.2f} cm (spread {100 * drop.spread:.2f})", TEXT_PT, False),
+                         (f"E_bend {r.metrics['bend']:.3g} J · E_strain {r.metrics['strain']:.3g} J", TEXT_PT, False)])
+    footnote = ["hem (gold): the garment's longest opening; hem drop: its mean fall below X_init (the skinned "
+                "garment before physics), spread: the drop's standard deviation along the hem.",
+                "E_bend, E_strain: the drape metrics, with the default (cotton) constants for every fabric, "
+                "so they compare shapes, not stiffnesses."]
     panel_w = max(max(im.shape[1] for im in images),
                   *(text_width(s, pt, bold=b) + (swatch + 6) * b for cap in captions for s, pt, b in cap))
-    title = f"material sweep: {results[0].name} [{results[0].pose}], same body and pose, yaw {yaw_deg:g}°"
-    width = max(2 * PAD + len(images) * panel_w + GAP * (len(images) - 1), 2 * PAD + text_width(title, TITLE_PT))
+    title = (f"material sweep: {results[0].name} [{results[0].pose}], same body, pose and view (yaw {yaw_deg:g}°)"
+             + (f"; {note}" if note else ""))
+    width = max(2 * PAD + len(images) * panel_w + GAP * (len(images) - 1), 2 * PAD + text_width(title, TITLE_PT),
+                2 * PAD + max(text_width(s, TEXT_PT) for s in footnote))
     top = PAD + line_height(TITLE_PT) + GAP // 2
     caption_h = sum(line_height(pt) for _, pt, _ in captions[0])
-    canvas = Canvas(width, top + size + 6 + caption_h + PAD)
+    chart_top = top + size + 6 + caption_h + GAP
+    chart_h = max(160, size // 2)
+    chart_left = PAD + 56  # room for the axis labels
+    canvas = Canvas(width, chart_top + chart_h + 34 + len(footnote) * line_height(TEXT_PT) + PAD)
     canvas.text(PAD, PAD, title, TITLE_PT, bold=True)
     x0 = (width - len(images) * panel_w - GAP * (len(images) - 1)) // 2
-    for k, (im, cap, r) in enumerate(zip(images, captions, results)):
+    for k, (im, cap, r, hem) in enumerate(zip(images, captions, results, hems)):
         x = x0 + k * (panel_w + GAP)
-        canvas.image(im, x + (panel_w - im.shape[1]) // 2, top)
+        ax = canvas.image(im, x + (panel_w - im.shape[1]) // 2, top)
+        _hem_line(ax, r, hem, yaw_deg=yaw_deg, size=size, frame=frame)
+        ax.set_xlim(-0.5, im.shape[1] - 0.5)
+        ax.set_ylim(im.shape[0] - 0.5, -0.5)
         y = top + size + 6
         for s, pt, bold in cap:
             if bold:
@@ -191,6 +246,11 @@ def material_sweep_figure(results: Sequence, labels: Sequence[str], path: str | 
             else:
                 canvas.text(x, y, s, pt)
             y += line_height(pt)
+    _hem_profile(canvas, results, labels, hems, (chart_left, chart_top, width - chart_left - PAD - 24, chart_h))
+    y = chart_top + chart_h + 34
+    for line in footnote:
+        canvas.text(PAD, y, line, TEXT_PT)
+        y += line_height(TEXT_PT)
     return canvas.save(path)
 
 

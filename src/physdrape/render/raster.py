@@ -14,7 +14,7 @@ import numpy as np
 from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.render.colors import BACKGROUND_RGB
 
-__all__ = ["rasterise", "render_view", "yaw_rotation"]
+__all__ = ["project", "rasterise", "render_view", "yaw_rotation"]
 
 
 def yaw_rotation(yaw_deg: float) -> np.ndarray:
@@ -87,6 +87,26 @@ def rasterise(screen: np.ndarray, faces: np.ndarray, height: int, width: int) ->
     return face_id.reshape(height, width), bary_img.reshape(height, width, 3)
 
 
+def _camera(frame: tuple[float, float, float, float], height: int) -> tuple[float, float, float, int]:
+    """(x_left [m], y_top [m], scale [px/m], width [px]) of a view `height` px high showing `frame`
+    (x_min, x_max, y_min, y_max) [m] with a 3 % margin."""
+    x0, x1, y0, y1 = frame
+    pad = 0.03 * max(x1 - x0, y1 - y0)
+    x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
+    scale = height / (y1 - y0)
+    return x0, y1, scale, max(8, round((x1 - x0) * scale))
+
+
+def project(points: np.ndarray, *, yaw_deg: float, size: int, frame: tuple[float, float, float, float],
+            supersample: int = 2) -> np.ndarray:
+    """Where points (N, 3) [m] land in the image `render_view` makes with the same yaw, size, frame
+    and supersampling: (N, 3) = image column and row [px] (pixel k spans [k, k + 1)) and the depth
+    along the view [m] (larger = nearer the camera)."""
+    v = np.asarray(points, np.float64) @ yaw_rotation(yaw_deg).T
+    x0, y1, scale, _ = _camera(frame, size * supersample)
+    return np.stack([(v[:, 0] - x0) * scale / supersample, (y1 - v[:, 1]) * scale / supersample, v[:, 2]], 1)
+
+
 def render_view(meshes: Sequence[dict], *, yaw_deg: float = 0.0, size: int = 512,
                 frame: tuple[float, float, float, float] | None = None, supersample: int = 2) -> np.ndarray:
     """Render meshes seen from the front (+z towards the camera), rotated by `yaw_deg` about y.
@@ -121,12 +141,8 @@ def render_view(meshes: Sequence[dict], *, yaw_deg: float = 0.0, size: int = 512
     col, fcol, nrm = np.concatenate(colors), np.concatenate(fcolors), np.concatenate(normals)
     if frame is None:
         frame = (v[:, 0].min(), v[:, 0].max(), v[:, 1].min(), v[:, 1].max())
-    x0, x1, y0, y1 = frame
-    pad = 0.03 * max(x1 - x0, y1 - y0)
-    x0, x1, y0, y1 = x0 - pad, x1 + pad, y0 - pad, y1 + pad
+    x0, y1, scale, width = _camera(frame, size * supersample)
     height = size * supersample
-    scale = height / (y1 - y0)
-    width = max(8, round((x1 - x0) * scale))
     screen = np.stack([(v[:, 0] - x0) * scale, (y1 - v[:, 1]) * scale, -v[:, 2]], 1)
     face_id, bary = rasterise(screen, f, height, width)
     hit = face_id >= 0
