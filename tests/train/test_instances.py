@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from physdrape.model import ModelConfig
+from physdrape.train.curves import plot_validation
 from physdrape.train.data import DataConfig, DrapeSource
 from physdrape.train.instances import InstanceCacheError, total_energy
 from physdrape.train.loss import LossConfig, drape_loss, teacher_distance
@@ -80,3 +81,5 @@ def test_training_on_the_cache_lowers_the_loss_and_logs_the_held_out_curve(tmp_p
     # before training the zero-initialised network is X_init: the whole gap is left
     assert rows[0]["gnn/energy_gap"] == pytest.approx(1.0, abs=1e-6)
     assert rows[0]["solver_t15/energy_gap"] < 1.0
+    plot_validation(rows, tmp_path / "validation.png")
+    assert (tmp_path / "validation.png").stat().st_size > 10_000

@@ -62,6 +62,9 @@ def test_stages_chain_resume_and_ship(recipe, tmp_path):
     last, _ = ckpt.read_checkpoint(run / "two")
     assert all(torch.equal(shipped[k], last[k]) for k in last)
     assert json.loads((tmp_path / "record" / "recipe.json").read_text())["stages"][1]["name"] == "two"
+    for name in ("one", "two"):  # every stage's record
+        assert json.loads((tmp_path / "record" / name / "record.json").read_text())["checkpoint"].startswith("step-")
+        assert (tmp_path / "record" / name / "loss_curve.png").is_file()
     # a second call without --resume refuses; with it, finished stages are skipped
     with pytest.raises(ConfigError, match="--resume"):
         run_recipe(recipe, run, source=source, command="c", log=lambda _: None)

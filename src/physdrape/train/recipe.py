@@ -14,7 +14,8 @@ A recipe is a YAML file::
 that already reached their steps, and resumes an interrupted stage from its latest checkpoint.
 DIR/recipe.json records the command, and per stage its config, seed, steps and the wall time
 spent in it (summed over resumed segments). With ``ship``, the last stage's model is exported and
-its training record written (`physdrape.train.ship`), with the recipe's record beside it.
+every stage's training record written into record_out/<stage name> (`physdrape.train.ship`), with
+the recipe's record beside them.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from physdrape.atomic import write_text
-from physdrape.checkpoint import latest_checkpoint
+from physdrape.checkpoint import export_model, latest_checkpoint
 from physdrape.config_io import ConfigError, load_config, read_yaml
 from physdrape.train.trainer import SampleSource, TrainConfig, Trainer
 
@@ -120,9 +121,11 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
     record["wall_s"] = sum(s["wall_s"] for s in record["stages"])
     write_text(record_path, json.dumps(record, indent=2) + "\n")
     if recipe.model_out is not None:
-        from physdrape.train.ship import ship
+        from physdrape.train.ship import write_record
 
-        ship(run_dir / recipe.stages[-1].name, recipe.model_out, recipe.record_out, command=command)
+        export_model(latest_checkpoint(run_dir / recipe.stages[-1].name), recipe.model_out)
+        for stage in recipe.stages:
+            write_record(run_dir / stage.name, recipe.record_out / stage.name, command=command)
         write_text(recipe.record_out / "recipe.json", json.dumps(record, indent=2) + "\n")
         log(f"[recipe] shipped {recipe.model_out} and its record {recipe.record_out}")
     return record
