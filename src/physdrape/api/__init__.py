@@ -26,15 +26,26 @@ Sequences: a multi-frame `Motion` is draped frame by frame with a warm start (ea
 from the previous frame's drape carried along by the body's motion, see `Motion`);
 ``Motion(..., warm_start=False)`` drapes every frame independently, as one batch.
 
+Devices: ``Draper(device="cuda")`` runs the model, its solver and collision handler and the body
+queries on a GPU (the default is "cpu"); bodies are posed and garments skinned on the CPU, and
+results are numpy arrays either way.
+
+Datasets: `run_manifest(draper, "jobs.jsonl", "out/")` drapes a JSON-lines manifest, one job per
+line, into one folder per job, resumable and sharded by rank (docs/manifest.md).
+
 Modules: `types` (the error and result types), `specs` (garment, shape, pose and material specs),
 `sequences` (warm-started motions), `placement` (the garment's unit and its place on the body),
-`draper` (the `Draper`), `fitting` (`fit_garment`).
+`draper` (the `Draper`), `fitting` (`fit_garment`), `manifest` (reading a manifest of jobs) and
+`manifest_run` (draping one, sharded and resumable).
 """
 
 from physdrape.api.draper import Draper, drape
 from physdrape.api.fitting import fit_garment
+from physdrape.api.manifest import Manifest, ManifestError, ManifestJob, read_manifest
+from physdrape.api.manifest_run import ManifestSummary, Outputs, ranks_from_env, run_manifest
 from physdrape.api.specs import DEFAULT_POSE, GARMENT_CATEGORIES, load_smpl_body
 from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, FitResult, Motion
 
 __all__ = ["DEFAULT_POSE", "GARMENT_CATEGORIES", "DrapeError", "DrapeResult", "DrapeWarning", "Draper", "FitResult",
-           "Motion", "drape", "fit_garment", "load_smpl_body"]
+           "Manifest", "ManifestError", "ManifestJob", "ManifestSummary", "Motion", "Outputs", "drape", "fit_garment",
+           "load_smpl_body", "ranks_from_env", "read_manifest", "run_manifest"]
