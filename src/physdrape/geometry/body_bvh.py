@@ -7,10 +7,15 @@ float32 and, if asked, the generalized winding number (Warp's fast winding numbe
 closest point on the found triangle in torch.
 
 The Warp kernels are defined lazily, once per process (Warp caches the compiled binary on disk).
+The BVHs live on the device of the body vertices (CPU or CUDA); the query tensors are shared with
+Warp without copies (`wp.from_torch`) and the kernels launch on that device. On CUDA every Warp
+operation runs on torch's current stream of the device, so it is ordered with the torch ops that
+write its inputs and read its outputs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from concurrent.futures import ThreadPoolExecutor
 
@@ -74,6 +79,13 @@ def _query_kernels():
     return wp, closest_kernel, closest_winding_kernel
 
 
+def _on_torch_stream(wp, device: torch.device):
+    """A context running Warp work on torch's current stream of CUDA `device`; nothing on the CPU."""
+    if device.type == "cuda":
+        return wp.ScopedStream(wp.stream_from_torch(device))
+    return contextlib.nullcontext()
+
+
 class BodyBVH:
     """One Warp BVH per body of a batch sharing one triangle topology.
 
@@ -87,24 +99,28 @@ class BodyBVH:
     def __init__(self, verts: Tensor, faces: Tensor, *, with_winding_number: bool) -> None:
         wp, _, _ = _query_kernels()
         self.with_winding_number = with_winding_number
+        self._device = verts.device
         self._wp_device = wp.device_from_torch(verts.device)
         # float32 copies the BVHs point at; must outlive the meshes.
         self._points32 = verts.detach().to(torch.float32).contiguous().clone()
-        self._indices32 = faces.to(torch.int32).reshape(-1).contiguous()
-        wp_indices = wp.from_torch(self._indices32, dtype=wp.int32)
-        self._meshes = [
-            wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
-                    support_winding_number=with_winding_number)
-            for b in range(verts.shape[0])
-        ]
-        ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
-        self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
+        self._indices32 = faces.to(device=verts.device, dtype=torch.int32).reshape(-1).contiguous()
+        with _on_torch_stream(wp, self._device):
+            wp_indices = wp.from_torch(self._indices32, dtype=wp.int32)
+            self._meshes = [
+                wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
+                        support_winding_number=with_winding_number)
+                for b in range(verts.shape[0])
+            ]
+            ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
+            self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
 
     def refit(self, verts: Tensor) -> None:
         """Move the bodies to new vertex positions of the same shape (B, Vb, 3): refit, no rebuild."""
         self._points32.copy_(verts.detach())
-        for mesh in self._meshes:
-            mesh.refit()
+        wp, _, _ = _query_kernels()
+        with _on_torch_stream(wp, self._device):
+            for mesh in self._meshes:
+                mesh.refit()
 
     def closest_faces(
         self, points32: Tensor, body: Tensor, *, winding_accuracy: float, threads: int | None = None
@@ -112,8 +128,8 @@ class BodyBVH:
         """Closest face (and winding-number inside flag) per point.
 
         Args:
-            points32: query points [m], shape (M, 3) float32, contiguous.
-            body: which body each point belongs to, shape (M,) int32, contiguous.
+            points32: query points [m], shape (M, 3) float32, contiguous, on the bodies' device.
+            body: which body each point belongs to, shape (M,) int32, contiguous, on that device.
             winding_accuracy: Warp's fast-winding-number accuracy (see `BodySurface`).
             threads: CPU threads that share the search (the points are split into chunks launched
                 from a thread pool, bit-for-bit the same result). None = `torch.get_num_threads()`.
@@ -148,7 +164,8 @@ class BodyBVH:
             for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
                 job.result()
         elif n:
-            launch(0, n)
+            with _on_torch_stream(wp, self._device):
+                launch(0, n)
         if n and int(face.min()) < 0:
             raise RuntimeError("the body BVH found no triangle for some points: every face of the body is "
                                "degenerate (zero area); check the body faces")

@@ -105,9 +105,19 @@ class Garment:
     def num_faces(self) -> int:
         return self.faces.shape[0]
 
-    def to(self, dtype: torch.dtype) -> "Garment":
-        """The same garment with floating tensors in `dtype`."""
-        return replace(self, rest=self.rest.to(dtype), rest_inv=self.rest_inv.to(dtype), rest_area=self.rest_area.to(dtype))
+    @property
+    def device(self) -> torch.device:
+        return self.rest.device
+
+    def to(self, dtype: torch.dtype | None = None, *, device: torch.device | str | None = None) -> "Garment":
+        """The same garment with floating tensors in `dtype` (None: kept) and every tensor on
+        `device` (None: kept)."""
+        def move(t: Tensor) -> Tensor:
+            return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
+
+        return replace(self, rest=move(self.rest), faces=move(self.faces), edges=move(self.edges),
+                       hinges=move(self.hinges), rest_inv=move(self.rest_inv), rest_area=move(self.rest_area),
+                       boundary_loops=tuple(move(loop) for loop in self.boundary_loops))
 
 
 @dataclass(frozen=True)
@@ -144,6 +154,7 @@ class GarmentBatch:
         vert_garment, face_garment, hinge_garment: owning garment of each element, int64.
         vert_offsets: (G + 1,) first vertex of each garment, last entry ΣV.
         garments: the unpacked garments, in order.
+    All tensors live on one device, the garments' (`to` moves them).
     """
 
     rest: Tensor
@@ -170,15 +181,20 @@ class GarmentBatch:
         dtypes = {g.rest.dtype for g in garments}
         if len(dtypes) > 1:
             raise ValueError(f"garments of one batch must share a dtype, got {sorted(map(str, dtypes))}")
-        counts = torch.tensor([g.num_verts for g in garments])
-        offsets = torch.cat([torch.zeros(1, dtype=torch.int64), counts.cumsum(0)])
+        devices = {g.device for g in garments}
+        if len(devices) > 1:
+            raise ValueError(f"garments of one batch must be on one device, got {sorted(map(str, devices))}: "
+                             "move them with Garment.to(device=...)")
+        device = garments[0].device
+        counts = torch.tensor([g.num_verts for g in garments], device=device)
+        offsets = torch.cat([torch.zeros(1, dtype=torch.int64, device=device), counts.cumsum(0)])
 
         def cat_indices(name: str) -> Tensor:
             return torch.cat([getattr(g, name) + offsets[k] for k, g in enumerate(garments)])
 
         def owner(name: str) -> Tensor:
-            sizes = torch.tensor([getattr(g, name).shape[0] for g in garments])
-            return torch.repeat_interleave(torch.arange(len(garments)), sizes)
+            sizes = torch.tensor([getattr(g, name).shape[0] for g in garments], device=device)
+            return torch.repeat_interleave(torch.arange(len(garments), device=device), sizes)
 
         edges = cat_indices("edges")
         return GarmentBatch(
@@ -208,25 +224,32 @@ class GarmentBatch:
     def dtype(self) -> torch.dtype:
         return self.rest.dtype
 
+    @property
+    def device(self) -> torch.device:
+        return self.rest.device
+
     def graph_levels(self, levels: int) -> GraphLevels:
         """The mesh graph (level 0) and `levels` coarser graphs over subsets of its vertices
         (`topology.coarse_graphs`, per garment), both edge directions, for hierarchical message
-        passing. A garment whose hierarchy ends early contributes nothing to the deeper levels."""
+        passing. A garment whose hierarchy ends early contributes nothing to the deeper levels.
+        The coarsening runs on the host (numpy, cached by topology); the graphs are on the batch's device."""
         if levels < 0:
             raise ValueError(f"levels must be ≥ 0, got {levels}")
+        device = self.device
         per_level: list[list[Tensor]] = [[] for _ in range(levels)]
+        offsets = self.vert_offsets.tolist()
         for g, garment in enumerate(self.garments):
-            offset = int(self.vert_offsets[g])
             for l, edges in enumerate(_coarse_graphs(garment, levels)):
-                per_level[l].append(torch.from_numpy(topology.bidirectional_edges(edges)) + offset)
-        edge_index, nodes, local = [self.edge_index], [torch.arange(self.num_verts)], [self.edge_index]
+                per_level[l].append(torch.from_numpy(topology.bidirectional_edges(edges)) + offsets[g])
+        edge_index, nodes, local = [self.edge_index], [torch.arange(self.num_verts, device=device)], [self.edge_index]
         for parts in per_level:
-            both = torch.cat(parts, dim=1) if parts else torch.zeros(2, 0, dtype=torch.int64)
+            both = (torch.cat(parts, dim=1) if parts else torch.zeros(2, 0, dtype=torch.int64)).to(device)
             ids = torch.unique(both)
             edge_index.append(both)
             nodes.append(ids)
             local.append(torch.searchsorted(ids, both))
-        level = torch.cat([torch.full((e.shape[1],), l, dtype=torch.int64) for l, e in enumerate(edge_index)])
+        level = torch.cat([torch.full((e.shape[1],), l, dtype=torch.int64, device=device)
+                           for l, e in enumerate(edge_index)])
         return GraphLevels(torch.cat(edge_index, dim=1), level, tuple(nodes), tuple(local))
 
     def split(self, values: Tensor) -> list[Tensor]:
@@ -234,10 +257,12 @@ class GarmentBatch:
         sizes = (self.vert_offsets[1:] - self.vert_offsets[:-1]).tolist()
         return list(torch.split(values, sizes, dim=-2))
 
-    def to(self, dtype: torch.dtype) -> "GarmentBatch":
-        """The same batch with floating tensors in `dtype`."""
-        changes = {f.name: getattr(self, f.name).to(dtype) for f in fields(self) if f.name in ("rest", "rest_inv", "rest_area")}
-        return replace(self, garments=tuple(g.to(dtype) for g in self.garments), **changes)
+    def to(self, dtype: torch.dtype | None = None, *, device: torch.device | str | None = None) -> "GarmentBatch":
+        """The same batch with floating tensors in `dtype` (None: kept) and every tensor, the
+        unpacked garments' included, on `device` (None: kept)."""
+        changes = {f.name: value.to(device=device, dtype=dtype if value.is_floating_point() else None)
+                   for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)}
+        return replace(self, garments=tuple(g.to(dtype, device=device) for g in self.garments), **changes)
 
 
 _COARSE_CACHE: dict[tuple[bytes, int], list[np.ndarray]] = {}
@@ -246,7 +271,7 @@ _COARSE_CACHE_SIZE = 4096
 
 def _coarse_graphs(garment: Garment, levels: int) -> list[np.ndarray]:
     """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across batches)."""
-    edges = garment.edges.numpy()
+    edges = garment.edges.cpu().numpy()
     key = (hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii"), levels)
     if key not in _COARSE_CACHE:
         if len(_COARSE_CACHE) >= _COARSE_CACHE_SIZE:

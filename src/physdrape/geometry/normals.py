@@ -28,14 +28,14 @@ def vertex_face_table(faces: Tensor, num_verts: int) -> Tensor:
     (a body), a gather and a sum are faster than a scatter.
     """
     num_faces = faces.shape[0]
-    v = faces.reshape(-1).cpu()
-    f = torch.arange(num_faces).repeat_interleave(3)
+    v = faces.reshape(-1).cpu()  # built on the host once per topology, then moved to the faces' device
+    f = torch.arange(num_faces, device=v.device).repeat_interleave(3)
     order = torch.argsort(v, stable=True)
     v, f = v[order], f[order]
     deg = torch.bincount(v, minlength=num_verts)
     start = torch.cumsum(deg, 0) - deg
-    slot = torch.arange(len(v)) - start[v]
-    table = torch.full((num_verts, int(deg.max()) if len(v) else 1), num_faces, dtype=torch.long)
+    slot = torch.arange(len(v), device=v.device) - start[v]
+    table = torch.full((num_verts, int(deg.max()) if len(v) else 1), num_faces, dtype=torch.long, device=v.device)
     table[v, slot] = f
     return table.to(faces.device)
 

@@ -121,8 +121,8 @@ def _check_verts(verts: Tensor) -> Tensor:
     return verts
 
 
-def _check_faces(faces: Tensor | np.ndarray, num_verts: int) -> Tensor:
-    faces = torch.as_tensor(faces)
+def _check_faces(faces: Tensor | np.ndarray, num_verts: int, device: torch.device) -> Tensor:
+    faces = torch.as_tensor(faces, device=device)
     if faces.dtype.is_floating_point or faces.dtype == torch.bool:
         raise TypeError(f"faces must be an integer tensor, got dtype {faces.dtype}")
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] < 1:
@@ -148,7 +148,8 @@ class BodySurface:
 
     Args:
         verts: body vertex positions [m], shape (Vb, 3) or (B, Vb, 3); kept (not copied) so the
-            query results are differentiable w.r.t. them.
+            query results are differentiable w.r.t. them. The surface, its BVHs and its searches
+            live on their device (CPU or CUDA); queries take points on that device.
         faces: outward-wound (counter-clockwise seen from outside) triangles, shape (Fb, 3) int.
         sign_method: how ``inside`` (and so the sign of d) is decided; see ``SignMethod``.
         near_tol: distance [m] below which a point counts as on the surface and gets the
@@ -185,7 +186,7 @@ class BodySurface:
         self.near_tol = float(near_tol)
         self.winding_accuracy = float(winding_accuracy)
         verts = _check_verts(verts)
-        self.faces = _check_faces(faces, verts.shape[1]).to(verts.device)
+        self.faces = _check_faces(faces, verts.shape[1], verts.device)
         self._edge_nbr = torch.from_numpy(edge_neighbour_faces(self.faces.cpu().numpy())).to(verts.device)
         self._build(verts)
 
@@ -202,6 +203,20 @@ class BodySurface:
     @property
     def num_faces(self) -> int:
         return self.faces.shape[0]
+
+    @property
+    def device(self) -> torch.device:
+        return self.verts.device
+
+    def to(self, device: torch.device | str) -> BodySurface:
+        """The same surface (same settings) on `device`: itself when already there, else a new
+        one with its BVHs built there."""
+        verts = self.verts.to(device)
+        if verts is self.verts:
+            return self
+        return BodySurface(verts, self.faces.to(device), sign_method=self.sign_method,
+                           near_tol=self.near_tol, winding_accuracy=self.winding_accuracy,
+                           search_threads=self.search_threads)
 
     def _build(self, verts: Tensor) -> None:
         """(Re)build one Warp BVH per body."""
