@@ -70,7 +70,7 @@ class CollisionHandler(nn.Module):
             return x
         verts = faces[hit].reshape(-1)
         p = push[hit].repeat_interleave(3)
-        size = torch.zeros(x.shape[0], dtype=x.dtype).scatter_reduce(0, verts, p, "amax", include_self=True)
+        size = x.new_zeros(x.shape[0]).scatter_reduce(0, verts, p, "amax", include_self=True)
         weighted = (push[hit, None] * query.normal[hit]).repeat_interleave(3, dim=0)
         direction = F.normalize(torch.zeros_like(x).index_add(0, verts, weighted), dim=1)
         return x + size[:, None] * direction

@@ -26,6 +26,7 @@ class DrapeInput:
         garments: packed garment templates; cloth: their physics coefficients (materials);
         x_init: kinematic initialisation X_init [m], (ΣV, 3);
         bodies: the posed bodies; body_index: body of each garment vertex, (ΣV,) int64.
+    All on one device, the model's (`to` moves them).
     """
 
     garments: GarmentBatch
@@ -33,6 +34,15 @@ class DrapeInput:
     x_init: Tensor
     bodies: BodySurface
     body_index: Tensor
+
+    @property
+    def device(self) -> torch.device:
+        return self.x_init.device
+
+    def to(self, device: torch.device | str) -> DrapeInput:
+        """The same batch on `device` (the body surface rebuilds its BVHs there)."""
+        return DrapeInput(self.garments.to(device=device), self.cloth.to(device=device), self.x_init.to(device),
+                          self.bodies.to(device), self.body_index.to(device))
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ need except the positions x, precomputed once per batch.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import torch
 from torch import Tensor
@@ -29,6 +29,7 @@ class Cloth:
         mass: vertex masses (V,) [kg]; gravity: acceleration vector (G, 3) [m/s²] per garment;
         vert_garment, face_garment, hinge_garment: owning garment per element; num_garments: G.
         stiffness: (μ [Pa], λ [Pa], k_bend [J]) of each garment's material, (G, 3).
+    All tensors live on the device of the garment batch it was built from (`to` moves them).
     """
 
     faces: Tensor
@@ -53,10 +54,10 @@ class Cloth:
         mats = [materials] * batch.num_garments if isinstance(materials, Material) else list(materials)
         if len(mats) != batch.num_garments:
             raise ValueError(f"got {len(mats)} materials for {batch.num_garments} garments: give one, or one per garment")
-        dtype = batch.dtype
+        dtype, device = batch.dtype, batch.device
 
         def per_garment(name: str) -> Tensor:
-            return torch.tensor([getattr(m, name) for m in mats], dtype=dtype)
+            return torch.tensor([getattr(m, name) for m in mats], dtype=dtype, device=device)
 
         rest, hinges = batch.rest, batch.hinges
         x0, x1, x2, x3 = (rest[hinges[:, k]] for k in range(4))
@@ -65,8 +66,9 @@ class Cloth:
         scale = (edge * edge).sum(-1) / (4.0 * area_sum)
 
         face_mass = per_garment("density")[batch.face_garment] * batch.rest_area / 3.0
-        mass = torch.zeros(batch.num_verts, dtype=dtype).index_add_(0, batch.faces.reshape(-1), face_mass.repeat_interleave(3))
-        gravity = torch.zeros(batch.num_garments, 3, dtype=dtype)
+        mass = torch.zeros(batch.num_verts, dtype=dtype, device=device).index_add_(0, batch.faces.reshape(-1),
+                                                                               face_mass.repeat_interleave(3))
+        gravity = torch.zeros(batch.num_garments, 3, dtype=dtype, device=device)
         gravity[:, 1] = -per_garment("gravity")
         return Cloth(
             faces=batch.faces,
@@ -92,6 +94,17 @@ class Cloth:
     @property
     def dtype(self) -> torch.dtype:
         return self.mass.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.mass.device
+
+    def to(self, dtype: torch.dtype | None = None, *, device: torch.device | str | None = None) -> "Cloth":
+        """The same cloth with floating tensors in `dtype` (None: kept) and every tensor on
+        `device` (None: kept)."""
+        changes = {f.name: value.to(device=device, dtype=dtype if value.is_floating_point() else None)
+                   for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)}
+        return replace(self, **changes)
 
     def sum_per_garment(self, values: Tensor, owner: Tensor) -> Tensor:
         """Sum per-element values (..., N) into per-garment totals (..., G) using `owner` (N,)."""

@@ -21,6 +21,13 @@ Numerics: patches and P depend on a garment's topology only and are cached. K (i
 dtype) is gathered into 3×3 blocks of the vertex pairs that share a face; Pᵀ K P is formed in
 float64 with scipy (block-sparse products) and factorised per garment (dense Cholesky). The
 correction is differentiable in r (P and the factor are constants).
+
+Devices: the face blocks are computed on the cloth's device, and the correction `solve` (every
+solver step) runs there too, with P and the factors held there. The Galerkin product and the
+factorisation (`factor`, every few steps) run on the host: Pᵀ K P is a product of block-sparse
+matrices whose pattern is fixed by the topology, which scipy forms in float64 at once, and each
+garment's coarse system is small (at most 3·MAX_PATCHES unknowns). Each `factor` therefore copies
+the face and contact blocks to the host and the factors back; on the CPU both copies are free.
 """
 
 from __future__ import annotations
@@ -79,8 +86,8 @@ def _regularized_cholesky(block: Tensor) -> Tensor:
         raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
     scale = block.diagonal().mean()
     if not bool(scale > 0):  # no stiffness at all (a lone patch moving freely): any scale regularises it
-        scale = torch.ones((), dtype=block.dtype)
-    eye = torch.eye(block.shape[0], dtype=block.dtype)
+        scale = torch.ones((), dtype=block.dtype, device=block.device)
+    eye = torch.eye(block.shape[0], dtype=block.dtype, device=block.device)
     for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
         chol, info = torch.linalg.cholesky_ex(block + REGULARIZATION * 100.0 ** attempt * scale * eye)
         if int(info) == 0:
@@ -93,7 +100,7 @@ class CoarseSpace:
     """Smoothed-aggregation coarse space of a packed garment batch (module docstring).
 
     Args:
-        cloth: the batch (garments packed contiguously, as `GarmentBatch.pack` does).
+        cloth: the batch (garments packed contiguously, as `GarmentBatch.pack` does), on any device.
         levels: patch seeds are the nodes of `topology.coarse_graphs` level `levels` (2: patches
             of 6–15 vertices).
         smoothing: neighbour-averaging passes of the patch indicators.
@@ -131,9 +138,10 @@ class CoarseSpace:
         self._pair_of_corner = torch.from_numpy(where.astype(np.int64))
         self._pair_of_vertex = torch.from_numpy(np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1)))
         coo = prolong.tocoo()
-        self._rows = torch.from_numpy(coo.row.astype(np.int64))
-        self._cols = torch.from_numpy(coo.col.astype(np.int64))
-        self._weights = torch.from_numpy(coo.data)
+        device = cloth.device
+        self._rows = torch.from_numpy(coo.row.astype(np.int64)).to(device)
+        self._cols = torch.from_numpy(coo.col.astype(np.int64)).to(device)
+        self._weights = torch.from_numpy(coo.data).to(device=device, dtype=torch.float64)
         self._factors: list[Tensor] | None = None
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
@@ -141,25 +149,27 @@ class CoarseSpace:
         per-vertex stiffness added to K (the solver's contact blocks), or None."""
         with torch.no_grad():
             corner = face_blocks(x.detach(), self.cloth).double().reshape(-1, 3, 3, 3, 3).permute(0, 1, 3, 2, 4)
-            blocks = torch.zeros(len(self._pair_cols), 3, 3, dtype=torch.float64)
+            # assembled on the host (module docstring)
+            blocks = torch.zeros(len(self._pair_cols), 3, 3, dtype=torch.float64, device="cpu")
             blocks.index_add_(0, self._pair_of_corner, corner.reshape(-1, 3, 3).cpu())
             if vertex_blocks is not None:
                 blocks.index_add_(0, self._pair_of_vertex, vertex_blocks.detach().double().cpu())
         n = 3 * self.cloth.num_verts
         stiffness = sp.bsr_matrix((blocks.numpy(), self._pair_cols, self._pair_indptr), shape=(n, n))
         coarse = (self._p3_t @ (stiffness @ self._p3)).tocsr()
-        self._factors = [_regularized_cholesky(torch.from_numpy(coarse[c0:c1, c0:c1].toarray()))
+        device = self.cloth.device
+        self._factors = [_regularized_cholesky(torch.from_numpy(coarse[c0:c1, c0:c1].toarray())).to(device)
                          for c0, c1 in self._coarse_ranges]
 
     def solve(self, r: Tensor) -> Tensor:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""
         if self._factors is None:
             raise RuntimeError("CoarseSpace.solve before factor: call factor(x) first")
-        weights = self._weights.to(device=r.device, dtype=torch.float64)[:, None]
-        rows, cols = self._rows.to(r.device), self._cols.to(r.device)
+        weights = self._weights[:, None]
+        rows, cols = self._rows, self._cols
         coarse_r = torch.zeros(self.num_patches, 3, dtype=torch.float64, device=r.device)
         coarse_r = coarse_r.index_add(0, cols, weights * r.double()[rows]).reshape(-1, 1)
-        parts = [torch.cholesky_solve(coarse_r[c0:c1], chol.to(r.device))
+        parts = [torch.cholesky_solve(coarse_r[c0:c1], chol)
                  for (c0, c1), chol in zip(self._coarse_ranges, self._factors)]
         coarse_z = torch.cat(parts).reshape(self.num_patches, 3)
         z = torch.zeros(r.shape[0], 3, dtype=torch.float64, device=r.device)

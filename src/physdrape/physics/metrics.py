@@ -33,8 +33,8 @@ def b2g_percent(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_ind
     inside = bodies.query(centroid, body_index=body_index[faces[:, 0]]).inside
     area = garments.rest_area.to(x.dtype)
     owner, count = garments.face_garment, garments.num_garments
-    inside_area = torch.zeros(count, dtype=x.dtype).index_add_(0, owner, area * inside.to(x.dtype))
-    total_area = torch.zeros(count, dtype=x.dtype).index_add_(0, owner, area)
+    inside_area = x.new_zeros(count).index_add_(0, owner, area * inside.to(x.dtype))
+    total_area = x.new_zeros(count).index_add_(0, owner, area)
     return 100.0 * inside_area / total_area
 
 
@@ -67,14 +67,14 @@ def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_i
     cloth = reference if cloth is None else cloth
     count = garments.num_garments
     query = bodies.query(x, body_index=body_index)
-    verts_per_garment = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, torch.ones_like(query.signed_distance))
-    close = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, (query.signed_distance < CLOSE_DISTANCE).to(x.dtype))
+    verts_per_garment = x.new_zeros(count).index_add_(0, garments.vert_garment, torch.ones_like(query.signed_distance))
+    close = x.new_zeros(count).index_add_(0, garments.vert_garment, (query.signed_distance < CLOSE_DISTANCE).to(x.dtype))
     force = internal_forces(x, cloth).norm(dim=-1)
     weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
     free = (query.signed_distance > CONTACT_DISTANCE).to(x.dtype)
-    free_count = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, free).clamp_min(1.0)
-    residual = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, force * free) / free_count
-    relative = torch.zeros(count, dtype=x.dtype).index_add_(0, garments.vert_garment, force / weight * free) / free_count
+    free_count = x.new_zeros(count).index_add_(0, garments.vert_garment, free).clamp_min(1.0)
+    residual = x.new_zeros(count).index_add_(0, garments.vert_garment, force * free) / free_count
+    relative = x.new_zeros(count).index_add_(0, garments.vert_garment, force / weight * free) / free_count
     return DrapeMetrics(
         strain=reference.sum_per_garment(strain_energy(x, reference), reference.face_garment),
         bend=reference.sum_per_garment(bend_energy(x, reference), reference.hinge_garment),

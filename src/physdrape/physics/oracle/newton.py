@@ -408,6 +408,10 @@ def relax(
                          f"got {tuple(x0.shape)}")
     if not torch.isfinite(x0).all():
         raise ValueError("x0 contains NaN/inf")
+    if {x0.device.type, cloth.device.type, bodies.device.type} != {"cpu"}:
+        raise ValueError(f"relax runs on the CPU (scipy's sparse factorisations), got x0 on {x0.device}, the cloth on "
+                         f"{cloth.device} and the bodies on {bodies.device}: move them there (x0.cpu(), "
+                         "cloth.to(device='cpu'), bodies.to('cpu'))")
     G = cloth.num_garments
     body_index = torch.zeros(G, dtype=torch.int64) if body_index is None else torch.as_tensor(body_index).long()
     if body_index.shape != (G,):
