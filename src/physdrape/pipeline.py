@@ -8,6 +8,10 @@ initialisation X_init (the garment skinned onto the posed body by its `SkinningT
 edge-stretch limited with the body held out; paper Eq. 5) unless the job brings its own start (a
 warm-started frame of a sequence). What does not change between drapes is computed once and
 cached per template: its skinning transfer onto the body model and its rest-state `Garment`.
+
+Devices: bodies are posed and garments skinned where the body model runs (the CPU, in
+`POSE_DTYPE`); the `DrapeInput` handed to the model (garments, cloth, X_init, body surfaces) is
+built on the pipeline's device, the templates' rest states cached there.
 """
 
 from __future__ import annotations
@@ -97,13 +101,16 @@ class DrapePipeline:
         body: the body model the templates are authored on (`canonical_verts`, `faces`), e.g. an
             `AnnyBody` of one rig or an `SMPLBody`.
         dtype: of the garments, bodies and X_init handed to the model.
+        device: where the model's input is built (see the module docstring).
         max_stretch: the transfer's bound on X_init's edge stretch (see `SkinningTransfer`);
             None keeps the transfer's default.
     """
 
-    def __init__(self, body, *, dtype: torch.dtype = DEFAULT_DTYPE, max_stretch: float | None = None) -> None:
+    def __init__(self, body, *, dtype: torch.dtype = DEFAULT_DTYPE, device: torch.device | str = "cpu",
+                 max_stretch: float | None = None) -> None:
         self.body = body
         self.dtype = dtype
+        self.device = torch.device(device)
         self.max_stretch = max_stretch
         self._transfers: dict[str, SkinningTransfer] = {}
         self._garments: dict[str, Garment] = {}
@@ -119,10 +126,10 @@ class DrapePipeline:
         return self._transfers[template.key]
 
     def garment(self, template: Template) -> Garment:
-        """The template's rest-state quantities in the pipeline's dtype (computed once)."""
+        """The template's rest-state quantities in the pipeline's dtype, on its device (computed once)."""
         if template.key not in self._garments:
             self._garments[template.key] = Garment.from_mesh(template.verts, template.faces, name=template.name,
-                                                             dtype=self.dtype)
+                                                             dtype=self.dtype).to(device=self.device)
         return self._garments[template.key]
 
     def x_init(self, template: Template, state: BodyState, index: int = 0) -> Tensor:
@@ -131,13 +138,15 @@ class DrapePipeline:
             return self.transfer(template).apply(select(state, index))[0]
 
     def build(self, jobs: Sequence[Job], state: BodyState) -> DrapeInput:
-        """The model's input for `jobs` on the posed bodies of `state` (one job per garment)."""
+        """The model's input for `jobs` on the posed bodies of `state` (one job per garment), on the
+        pipeline's device."""
         if not jobs:
             raise ValueError("no jobs to drape")
-        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, state, job.body)).to(self.dtype)
-                  for job in jobs]
+        device = self.device
+        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, state, job.body))
+                  .to(device=device, dtype=self.dtype) for job in jobs]
         batch = GarmentBatch.pack([self.garment(job.template) for job in jobs])
         cloth = Cloth.build(batch, [job.material for job in jobs])
-        bodies = BodySurface(state.verts.detach().to(self.dtype), state.faces)
-        body_of_vertex = torch.tensor([job.body for job in jobs], dtype=torch.int64)[batch.vert_garment]
-        return DrapeInput(batch, cloth, torch.cat(x_init), bodies, body_of_vertex)
+        bodies = BodySurface(state.verts.detach().to(device=device, dtype=self.dtype), state.faces)
+        body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)
+        return DrapeInput(batch, cloth, torch.cat(x_init), bodies, body_of_job[batch.vert_garment])

@@ -4,6 +4,10 @@ A call to `Draper.drape` resolves its specs (`physdrape.api.specs`), broadcasts 
 materials into jobs, drapes the independent jobs in batches through the drape pipeline
 (`physdrape.pipeline`) and the model, then the frames of warm-started motions one by one
 (`physdrape.api.sequences`), and packs one `DrapeResult` per job.
+
+The model, its solver and collision handler, the body queries and the pipeline's output live on
+the Draper's device ("cpu" or a CUDA GPU); bodies are posed, garments skinned and drapes refined
+by the oracle on the CPU, and results are numpy arrays whatever the device.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from physdrape.api.specs import BodyPose
 from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
+from physdrape.devices import DeviceError, resolve_device
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, energy_terms, internal_forces, relax
 from physdrape.physics.metrics import drape_metrics
@@ -66,6 +71,9 @@ class Draper:
             .obj/.ply files authored on SMPL's canonical body (β = 0, zero pose).
         smpl_gender: picks the file when `smpl_model` is a folder.
         dtype: dtype of garments, bodies and the solver (the network keeps its own).
+        device: where the model, solver, collision handler and body queries run: "cpu" (the
+            default), "cuda" (the current GPU) or "cuda:N" (a DrapeError says how to fix a CUDA
+            request this machine cannot meet).
         check_pose: refuse (DrapeError) a pose whose arms pass through the torso
             (`body.poses.arm_torso_penetration`), instead of draping it silently.
         arm_contact_tolerance: arm vertices (of those the check samples, every 4th) allowed
@@ -75,11 +83,16 @@ class Draper:
 
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
                  dtype: torch.dtype = DEFAULT_DTYPE, check_pose: bool = True, arm_contact_tolerance: int = 20,
-                 smpl_model: str | Path | None = None, smpl_gender: str = "neutral") -> None:
+                 smpl_model: str | Path | None = None, smpl_gender: str = "neutral",
+                 device: str | torch.device = "cpu") -> None:
         if not isinstance(steps, int) or steps < 0:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         if dtype not in (torch.float32, torch.float64):
             raise DrapeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        try:
+            self.device = resolve_device(device)
+        except DeviceError as exc:
+            raise DrapeError(str(exc)) from None
         path = Path(checkpoint).expanduser() if checkpoint is not None else ckpt.bundled_model()
         if not path.exists():
             hint = "the bundled model is not installed" if checkpoint is None else f"{path} does not exist"
@@ -92,6 +105,7 @@ class Draper:
             self.model, _ = ckpt.load_model(path)
         except ckpt.CheckpointError as exc:
             raise DrapeError(f"cannot load the PhysDrape model: {exc}") from None
+        self.model.to(self.device)
         self.model_config = self.model.config
         self.checkpoint = path
         self.steps = steps
@@ -128,9 +142,10 @@ class Draper:
         return self._bodies[rig]
 
     def pipeline(self, rig: str) -> DrapePipeline:
-        """The drape pipeline of body rig `rig` (its transfers and garments cached), in the Draper's dtype."""
+        """The drape pipeline of body rig `rig` (its transfers and garments cached), in the Draper's
+        dtype, building on its device."""
         if rig not in self._pipelines:
-            self._pipelines[rig] = DrapePipeline(self.body(rig), dtype=self.dtype)
+            self._pipelines[rig] = DrapePipeline(self.body(rig), dtype=self.dtype, device=self.device)
         return self._pipelines[rig]
 
     def garment(self, spec, *, units: str = "m") -> Template:
@@ -341,14 +356,14 @@ class Draper:
         t3 = time.perf_counter()
         convergence = self._convergence(out, inp, len(jobs)) if keep_trace else [{} for _ in jobs]
         t3b = time.perf_counter()
-        if refine:
-            c64 = Cloth.build(inp.garments.to(torch.float64), [job.material for job in jobs])
-            b64 = BodySurface(state.verts.to(torch.float64), state.faces)
-            body_of_garment = torch.tensor([job.body for job in pipeline_jobs])
-            res = relax(x.to(torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,
+        if refine:  # the oracle runs on the CPU (scipy's sparse factorisations), where the bodies are posed
+            c64 = Cloth.build(inp.garments.to(torch.float64, device="cpu"), [job.material for job in jobs])
+            b64 = BodySurface(state.verts.to(device="cpu", dtype=torch.float64), state.faces)
+            body_of_garment = torch.tensor([job.body for job in pipeline_jobs], device="cpu")
+            res = relax(x.to(device="cpu", dtype=torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,
                         time_budget_s=refine_time_s, contact_stiffness=self.model_config.contact_stiffness,
                         margin=self.model_config.margin)
-            x = res.x.to(self.dtype)
+            x = res.x.to(device=self.device, dtype=self.dtype)
         t4 = time.perf_counter()
         results = self._results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm)
         t5 = time.perf_counter()
@@ -358,7 +373,8 @@ class Draper:
         for r in results:
             r.timings = dict(timings)
         xs = inp.garments.split(x)
-        nxt = [None if t is None else _Warm(xs[k].to(POSE_DTYPE), t) for k, t in enumerate(following)]
+        nxt = [None if t is None else _Warm(xs[k].to(device=t.device, dtype=POSE_DTYPE), t)
+               for k, t in enumerate(following)]
         return results, nxt
 
     @staticmethod
@@ -368,7 +384,7 @@ class Draper:
         for xt in (out.x_gnn, *out.trace):
             e = sum(energy_terms(xt, inp.cloth).values())
             f = (internal_forces(xt, inp.cloth) + out.f_hat).norm(dim=-1)
-            fsum = torch.zeros(count, dtype=f.dtype).index_add_(0, inp.garments.vert_garment, f)
+            fsum = f.new_zeros(count).index_add_(0, inp.garments.vert_garment, f)
             for k in range(count):
                 convergence[k]["energy"].append(float(e[k]))
                 convergence[k]["force"].append(float(fsum[k]))
