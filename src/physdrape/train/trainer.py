@@ -3,6 +3,10 @@
 Every step draws the global batch's sample seeds from one generator shared by all ranks; rank r
 builds samples [r·b, (r+1)·b) of them, so a run on R processes with local batch b sees exactly the
 samples of a one-process run with batch R·b, and gradients (averaged by DDP) agree with it.
+
+The model trains on the trainer's device: the source builds each batch (on the CPU) and the
+trainer moves it there. Weights are initialised on the CPU before the move, so a seed gives the
+same initial model on every device; the held-out validation runs on the CPU.
 """
 
 from __future__ import annotations
@@ -11,13 +15,14 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
 
 import torch
 import torch.distributed as dist
 from physdrape.atomic import write_text
+from physdrape.devices import resolve_device
 from physdrape.config_io import to_mapping
 from physdrape.physics.metrics import b2g_percent
 from physdrape.model import ModelConfig, PhysDrape
@@ -93,10 +98,14 @@ def _draw_seeds(generator: torch.Generator, count: int) -> list[int]:
 
 class Trainer:
     """Runs `TrainConfig` on a `SampleSource`, writing checkpoints, metrics.jsonl and TensorBoard
-    scalars under `run_dir`. Call `run(resume=True)` to continue from the latest checkpoint."""
+    scalars under `run_dir`. Call `run(resume=True)` to continue from the latest checkpoint.
+
+    device: where the model trains, "cpu" (the default), "cuda" or "cuda:N"
+    (`physdrape.devices.resolve_device`; a DeviceError says how to fix an unmet CUDA request)."""
 
     def __init__(self, config: TrainConfig, source: SampleSource, run_dir: str | os.PathLike, *, extra_config: dict | None = None,
-                 progress: bool = True, tensorboard: bool = True) -> None:
+                 progress: bool = True, tensorboard: bool = True, device: str | torch.device = "cpu") -> None:
+        self.device = resolve_device(device)
         self.config = config
         self.source = source
         self.run_dir = Path(run_dir)
@@ -109,13 +118,14 @@ class Trainer:
         torch.manual_seed(config.optim.seed)
         if config.dtype not in ("float32", "float64"):
             raise ValueError(f"TrainConfig.dtype must be 'float32' or 'float64', got {config.dtype!r}")
-        self.model = PhysDrape(config.model).to(getattr(torch, config.dtype))
+        self.model = PhysDrape(config.model).to(getattr(torch, config.dtype)).to(self.device)
         self.generator = torch.Generator().manual_seed(config.optim.seed)
         self.step = 0
         self.ddp = None
         if self.world > 1:
             self.ddp = torch.nn.parallel.DistributedDataParallel(
-                self.model, find_unused_parameters=config.model.variant.value != "full"
+                self.model, device_ids=[self.device.index] if self.device.type == "cuda" else None,
+                find_unused_parameters=config.model.variant.value != "full"
             )
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
         decay = math.log(config.optim.lr_final_ratio) / config.optim.steps
@@ -180,7 +190,11 @@ class Trainer:
     def _local_batch(self) -> TrainingBatch:
         seeds = _draw_seeds(self.generator, self.config.optim.batch_size)
         local = self.config.optim.batch_size // self.world
-        return self.source.make_batch(seeds[self.rank * local:(self.rank + 1) * local])
+        sample = self.source.make_batch(seeds[self.rank * local:(self.rank + 1) * local])
+        if sample.drape.device == self.device:
+            return sample
+        return replace(sample, drape=sample.drape.to(self.device),
+                       teacher=None if sample.teacher is None else sample.teacher.to(self.device))
 
     def warm_up_normalizers(self) -> None:
         """Statistics-only warm-up (no optimiser steps); ranks all-reduce their sums."""
