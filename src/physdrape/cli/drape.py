@@ -1,5 +1,6 @@
 """`physdrape drape`: parse the flags into the API's arguments, drape with the public API
 (`physdrape.api.Draper`), and write meshes, pictures and report.json atomically into --out.
+With --manifest, `physdrape.cli.drape_manifest` drapes a file of jobs instead.
 
 The API validates garments, bodies, poses, materials and the checkpoint; this module checks only
 what belongs to the command line (flag syntax, flag combinations, the output folder)."""
@@ -20,6 +21,7 @@ import torch
 from physdrape import __version__
 from physdrape.api import GARMENT_CATEGORIES, Draper, DrapeWarning, Motion
 from physdrape.api.placement import UNITS
+from physdrape.cli import drape_manifest
 from physdrape.cli.common import CLIError, check_out_dir, commit_directory, safe_name, staged_directory
 from physdrape.progress import slow_phase
 
@@ -30,6 +32,8 @@ examples:
   physdrape drape --garment shirt.obj --garment tshirt:7 --out out/ --force --figures
   physdrape drape --bvh walk.bvh --frames 0:8 --out walk/
   physdrape drape --smpl-model SMPL_NEUTRAL.npz --garment smpl_shirt.obj --betas 1.2,-0.5 --amass seq.npz --frames 0:10
+  physdrape drape --manifest jobs.jsonl --out dataset/          # one job per line -> dataset/<id>/ (docs/manifest.md)
+  torchrun --nnodes 1 --nproc-per-node 4 -m physdrape.cli drape --manifest jobs.jsonl --out dataset/
 outputs (in --out, metres whatever --units): garment.obj/.ply, body.obj/.ply, drape.glb, render.png,
   report.json (docs/report.md: every field) (several garments or frames: one numbered sub-directory
   each, one report.json). --force replaces an existing --out as a whole, once the new run is
@@ -47,6 +51,10 @@ SMPL / SMPL-X (--smpl-model; model files are not shipped, https://smpl.is.tue.mp
   --betas (up to 10 values, the rest 0), pose = --theta FILE.npy (axis-angles [rad], (24, 3) or
   (72,) for SMPL) or --amass FILE.npz (its betas are the shape unless --betas is given); the
   garment must be an .obj/.ply authored on SMPL's canonical body (beta = 0, zero pose).
+manifests (--manifest JOBS.jsonl; docs/manifest.md): one job per line, e.g. {"id": "a1", "garment":
+  "tshirt:7", "shape": {"weight": 0.8}, "pose": "stand", "material": "denim"}; each job is written
+  whole into --out/<id>/ (--outputs lean: garment.ply + report.json); a rerun skips finished jobs;
+  under torchrun job j is draped by rank j mod WORLD_SIZE; each rank writes summary.rankR-of-W.json.
 """
 
 
@@ -227,6 +235,8 @@ def cmd_drape(args: argparse.Namespace) -> int:
     from physdrape.physics.presets import MATERIAL_PRESETS
     from physdrape.render import compose_gallery, convergence_figure, material_sweep_figure, render_result
 
+    if args.manifest is not None:
+        return drape_manifest.cmd_manifest(args)
     t_start = time.perf_counter()
     # 1. the command line's own checks, before any work or any write
     if not 32 <= args.render_size <= 4096:
@@ -365,4 +375,5 @@ def add_parser(sub) -> None:
                    "gallery.png")
     r.add_argument("--render-size", type=int, default=640, help="height of each body view in the pictures [px] (default 640)")
     r.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    drape_manifest.add_arguments(drape)
     drape.set_defaults(func=cmd_drape, interrupted=_interrupted)
