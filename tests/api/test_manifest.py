@@ -4,11 +4,13 @@ outputs, resume, failures and summaries on the tiny test model."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from physdrape import checkpoint
 from physdrape.api import DrapeError, ManifestError, Motion, Outputs, ranks_from_env, read_manifest, run_manifest
 from physdrape.api.manifest_run import batches, summary_path
 from physdrape.physics.presets import MATERIAL_PRESETS
@@ -194,3 +196,24 @@ def test_a_failing_job_fails_alone_and_is_listed(draper, tmp_path, far_obj):
     assert "neither touches nor surrounds" in summary.failed[0]["error"] and summary.failed[0]["line"] == 2
     assert summary.bad_lines == [{"line": 3, "error": summary.bad_lines[0]["error"]}]
     assert _summary(out)["failed"] == summary.failed and not (out / "far").exists()
+
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "manifest.md"
+
+
+def test_the_documented_manifest_and_python_example_work(tiny_checkpoint, anny_body, tmp_path, monkeypatch):
+    text = DOC.read_text()
+    lines = re.search(r"```json\n(.*?)```", text, re.DOTALL).group(1).splitlines()
+    (tmp_path / "garments").mkdir()
+    (tmp_path / "garments" / "shirt.obj").write_text("")  # only its existence is checked before draping
+    (tmp_path / "walk.bvh").write_text("")
+    manifest = read_manifest(_write(tmp_path / "example.jsonl", lines))
+    assert not manifest.bad and len(manifest.jobs) == len(lines) == 5
+    assert [j.id for j in manifest.jobs][2] == "line-000003"
+
+    code = re.search(r"## From Python\n\n```python\n(.*?)```", text, re.DOTALL).group(1)
+    _write(tmp_path / "jobs.jsonl", [{"id": "a", "pose": "stand"}, {"pose": "t-pose"}])
+    monkeypatch.setattr(checkpoint, "bundled_model", lambda: Path(tiny_checkpoint))
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code.replace("steps=15", "steps=2"), "manifest.md", "exec"), {})  # noqa: S102 - our own docs
+    assert sorted(p.name for p in (tmp_path / "DIR").iterdir()) == ["a", "line-000002", "summary.rank0-of-1.json"]
