@@ -37,6 +37,8 @@ def test_single_drape_flags_are_refused_with_the_job_key_to_use(run, tmp_path, c
     assert 'give "pose" in each line of the manifest' in capsys.readouterr().err
     assert run(jobs, tmp_path / "out", "--figures") == 2
     assert "not available with --manifest" in capsys.readouterr().err
+    assert run(jobs, tmp_path / "out", "--seed", "0") == 2
+    assert 'give "garment" in each line' in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 

@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_flags(args: argparse.Namespace) -> None:
-    given = [flag for flag in PER_JOB_FLAGS if getattr(args, flag, None) not in (None, False)]
+    given = [flag for flag in PER_JOB_FLAGS if getattr(args, flag, None) is not None and getattr(args, flag) is not False]
     if given:
         flag = given[0]
         key = PER_JOB_FLAGS[flag]
