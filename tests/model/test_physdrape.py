@@ -9,7 +9,8 @@ from physdrape.geometry.garment import GarmentBatch
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.model.gnn import level_schedule
 from physdrape.physics import Cloth, Material
-from physdrape.train.loss import LossConfig, drape_energies, drape_loss
+from physdrape.physics.energy import drape_energies
+from physdrape.train.loss import LossConfig, drape_loss
 
 #: A small model with the explicit solver: its steps are exactly equivariant to vertex relabelling
 #: (the two-level solver's coarse patches are picked in vertex order), and they leave the tubes

@@ -64,8 +64,7 @@ from physdrape.eval.report import (
     provenance,
 )
 from physdrape.model import DrapeInput, PhysDrape, Variant
-from physdrape.physics.contact import penalty_contact_energy
-from physdrape.physics.forces import energy_terms
+from physdrape.physics import energy
 from physdrape.physics.metrics import drape_metrics
 from physdrape.physics.oracle import relax, silenced
 
@@ -145,12 +144,10 @@ def _metrics(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> dict[str, 
 
 @torch.no_grad()
 def total_energy(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> torch.Tensor:
-    """E_strain + E_bend + E_grav + E_contact per garment [J] (G,): what the oracle minimises
+    """`physics.energy.total_energy` of one evaluation batch [J] (G,): what the oracle minimises
     (penalty contact at vertices and face centroids; the batch's materials)."""
-    terms = energy_terms(x, batch.cloth)
-    e_contact = penalty_contact_energy(x, batch.cloth, batch.bodies, batch.body_index, stiffness=contact.stiffness,
-                                       margin=contact.margin)
-    return terms["strain"] + terms["bend"] + terms["gravity"] + e_contact
+    return energy.total_energy(x, batch.cloth, batch.bodies, batch.body_index, contact_stiffness=contact.stiffness,
+                               margin=contact.margin)
 
 
 @torch.no_grad()

@@ -35,10 +35,10 @@ from safetensors.torch import load_file, save
 
 from physdrape.atomic import write_bytes, write_text
 from physdrape.body.pool import BodyPool
-from physdrape.model import DrapeInput
 from physdrape.model.config import ModelConfig
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
 from physdrape.physics import Material
+from physdrape.physics.energy import total_energy
 from physdrape.pipeline import DrapePipeline, Job, Template
 from physdrape.train.materials import sample_material
 
@@ -174,7 +174,8 @@ class InstanceCache:
                                      bodies=drape.bodies, body_index=drape.body_index)
                 write_bytes(self.directory / p / f"{i:06d}.safetensors",
                             save({"x_init": drape.x_init.contiguous(), "teacher": teacher.contiguous()}))
-                energy = float(total_energy(teacher, drape, self.model)[0])
+                energy = float(total_energy(teacher, drape.cloth, drape.bodies, drape.body_index,
+                                            contact_stiffness=self.model.contact_stiffness, margin=self.model.margin)[0])
                 records.append(asdict(Instance(g, templates[g].name, b, asdict(material), energy)))
                 write_text(self.directory / "manifest.json", json.dumps(self.manifest, indent=1))
                 done = sum(len(self.manifest["parts"][q]) for q in PARTS)
@@ -185,13 +186,3 @@ class InstanceCache:
 
 def _material(rng: np.random.Generator, materials: str) -> Material:
     return sample_material(rng) if materials == "sampled" else Material()
-
-
-@torch.no_grad()
-def total_energy(x: torch.Tensor, batch: DrapeInput, model: ModelConfig) -> torch.Tensor:
-    """E_strain + E_bend + E_grav + E_contact per garment [J] (G,), the contact term the model's."""
-    from physdrape.train.loss import drape_energies
-
-    terms = drape_energies(x, batch.cloth, batch.bodies, batch.body_index, contact_stiffness=model.contact_stiffness,
-                           margin=model.margin)
-    return sum(terms.values())

@@ -10,8 +10,7 @@ from torch import Tensor
 
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.contact import penalty_contact_energy
-from physdrape.physics.forces import energy_terms
+from physdrape.physics.energy import drape_energies
 
 
 @dataclass(frozen=True)
@@ -39,23 +38,6 @@ class LossConfig:
             raise ValueError(f"LossConfig.per_garment_scale must be 'none' or 'initial', got {self.per_garment_scale!r}")
         if not self.teacher_weight >= 0:
             raise ValueError(f"LossConfig.teacher_weight must be ≥ 0 [J/m²], got {self.teacher_weight!r}")
-
-
-def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, *, contact_stiffness: float,
-                   margin: float) -> dict[str, Tensor]:
-    """Each energy term per garment [J] at positions x (ΣV, 3) [m]: {strain, bend, collision, gravity} → (G,).
-
-    body_index: body of each vertex (ΣV,). collision is the contact penalty of `physics.contact`
-    (k_c = contact_stiffness [J/m³], ε = margin [m]) at the vertices and the face centroids, the
-    oracle's term.
-    """
-    terms = energy_terms(x, cloth)
-    return {
-        "strain": terms["strain"],
-        "bend": terms["bend"],
-        "collision": penalty_contact_energy(x, cloth, bodies, body_index, stiffness=contact_stiffness, margin=margin),
-        "gravity": terms["gravity"],
-    }
 
 
 def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth) -> Tensor:

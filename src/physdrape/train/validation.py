@@ -28,8 +28,7 @@ import torch
 from physdrape.model import PhysDrape, Variant
 from physdrape.physics.metrics import b2g_percent
 from physdrape.train.data import TrainingBatch
-from physdrape.train.instances import total_energy
-from physdrape.train.loss import drape_energies
+from physdrape.physics.energy import drape_energies, total_energy
 
 #: Row name → (variant, solver steps, with the network).
 ROWS = {
@@ -75,16 +74,17 @@ class Validator:
             variants[variant].load_state_dict(state)
         for batch in self.batches:
             drape = batch.drape
-            teacher_total += float(total_energy(batch.teacher, drape, model.config)[0])
-            init_total += float(total_energy(drape.x_init, drape, model.config)[0])
-            teacher_strain += float(drape_energies(batch.teacher, drape.cloth, drape.bodies, drape.body_index,
-                                                   **contact)["strain"][0])
+            problem = (drape.cloth, drape.bodies, drape.body_index)
+            teacher_total += float(total_energy(batch.teacher, *problem, **contact)[0])
+            init_total += float(total_energy(drape.x_init, *problem, **contact)[0])
+            teacher_strain += float(drape_energies(batch.teacher, *problem, **contact)["strain"][0])
             for r in rows:
                 variant, steps, network = ROWS[r]
                 m = variants[variant]
                 x = (m(drape, steps=steps) if network else m.physics_only(drape, steps=steps)).x
-                sums[r][0] += float(total_energy(x, drape, model.config)[0])
-                sums[r][1] += float(drape_energies(x, drape.cloth, drape.bodies, drape.body_index, **contact)["strain"][0])
+                terms = drape_energies(x, *problem, **contact)
+                sums[r][0] += float(sum(terms.values())[0])
+                sums[r][1] += float(terms["strain"][0])
                 sums[r][2] += float(b2g_percent(x, drape.garments, drape.bodies, drape.body_index)[0])
         out = {}
         for r, (total, strain, b2g) in sums.items():

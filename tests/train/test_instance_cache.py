@@ -9,7 +9,8 @@ import torch
 from physdrape.model import ModelConfig
 from physdrape.train.curves import plot_validation
 from physdrape.train.data import DataConfig, DrapeSource
-from physdrape.train.instances import InstanceCacheError, total_energy
+from physdrape.physics.energy import total_energy
+from physdrape.train.instances import InstanceCacheError
 from physdrape.train.loss import LossConfig, drape_loss, teacher_distance
 from physdrape.train.trainer import OptimConfig, TrainConfig, Trainer
 
@@ -33,8 +34,10 @@ def test_cache_holds_teacher_drapes_that_lower_the_energy_and_grows_without_chan
     assert {r["garment"] for r in manifest["parts"]["val"]} == {1}
     sample = source.make_batch([3, 4])
     assert sample.teacher.shape == sample.drape.x_init.shape
-    start = total_energy(sample.drape.x_init, sample.drape, SMALL)
-    assert (total_energy(sample.teacher, sample.drape, SMALL) < start).all()
+    d = sample.drape
+    contact = dict(contact_stiffness=SMALL.contact_stiffness, margin=SMALL.margin)
+    start = total_energy(d.x_init, d.cloth, d.bodies, d.body_index, **contact)
+    assert (total_energy(sample.teacher, d.cloth, d.bodies, d.body_index, **contact) < start).all()
     first = (tmp_path / "cache" / "train" / "000000.safetensors").read_bytes()
     DrapeSource(replace(data, instance_count=3), model=SMALL, body=anny_body)
     assert (tmp_path / "cache" / "train" / "000000.safetensors").read_bytes() == first
