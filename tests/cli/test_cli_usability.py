@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from physdrape import checkpoint
 from physdrape.cli import main
@@ -204,3 +205,18 @@ def test_a_detached_garment_is_refused_unless_allowed(bundled, tmp_path, capsys)
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("physdrape: warning:")]
     assert len(warnings) == 1 and "neither touches nor surrounds" in warnings[0]
     assert json.loads((out / "report.json").read_text())["warnings"] == [warnings[0][len("physdrape: warning: "):]]
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without CUDA")
+def test_asking_for_cuda_without_a_gpu_says_how_to_fix_it(tmp_path, capsys):
+    assert main(["drape", "--device", "cuda", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("physdrape: error: device 'cuda' asks for CUDA") and "device='cpu'" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_cuda_under_torchrun_means_the_local_ranks_gpu(monkeypatch):
+    from physdrape.cli.common import process_device
+
+    monkeypatch.setenv("LOCAL_RANK", "3")
+    assert process_device("cuda") == "cuda:3" and process_device("cpu") == "cpu" and process_device("cuda:1") == "cuda:1"

@@ -102,3 +102,17 @@ def commit_directory(tmp: Path, out: Path, *, force: bool, replaces: str | None 
                 raise CLIError(f"--out {out} exists and is not a directory; choose another path")
             check_out_dir(out, force, replaces=replaces)
         replace_directory(tmp, out)
+
+
+def process_device(name: str) -> str:
+    """The device of this process: `name` ("cpu", "cuda", "cuda:N"), with "cuda" meaning the GPU of
+    the process's local rank under torchrun (LOCAL_RANK), so each process of a node gets its own."""
+    if name == "cuda" and "LOCAL_RANK" in os.environ:
+        return f"cuda:{int(os.environ['LOCAL_RANK'])}"
+    return name
+
+
+def add_device_argument(parser) -> None:
+    """--device {cpu, cuda, cuda:N} (default cpu)."""
+    parser.add_argument("--device", default="cpu", help="where the model runs: cpu (default), cuda (under torchrun: "
+                        "the GPU of each process's LOCAL_RANK) or cuda:N")

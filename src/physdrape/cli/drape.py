@@ -22,7 +22,15 @@ from physdrape import __version__
 from physdrape.api import GARMENT_CATEGORIES, Draper, DrapeWarning, Motion
 from physdrape.api.placement import UNITS
 from physdrape.cli import drape_manifest
-from physdrape.cli.common import CLIError, check_out_dir, commit_directory, safe_name, staged_directory
+from physdrape.cli.common import (
+    CLIError,
+    add_device_argument,
+    check_out_dir,
+    commit_directory,
+    process_device,
+    safe_name,
+    staged_directory,
+)
 from physdrape.progress import slow_phase
 
 DRAPE_EPILOG = """\
@@ -252,7 +260,7 @@ def cmd_drape(args: argparse.Namespace) -> int:
 
     # 2. drape (the API validates garments, units, placement, bodies, poses and the checkpoint)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
-                    smpl_gender=args.smpl_gender)
+                    smpl_gender=args.smpl_gender, device=process_device(args.device))
     common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached}
     what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
     with slow_phase(what):
@@ -375,5 +383,6 @@ def add_parser(sub) -> None:
                    "gallery.png")
     r.add_argument("--render-size", type=int, default=640, help="height of each body view in the pictures [px] (default 640)")
     r.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    add_device_argument(r)
     drape_manifest.add_arguments(drape)
     drape.set_defaults(func=cmd_drape, interrupted=_interrupted)

@@ -12,7 +12,7 @@ import torch
 
 from physdrape.api import Draper, ManifestError, ranks_from_env, read_manifest, run_manifest
 from physdrape.api.manifest_run import Outputs, summary_path
-from physdrape.cli.common import CLIError
+from physdrape.cli.common import CLIError, process_device
 
 #: Flags of a single drape that a manifest's lines give per job instead (flag → the job key to use).
 PER_JOB_FLAGS = {"garment": "garment", "category": "garment", "seed": "garment", "shape": "shape", "pose": "pose",
@@ -61,7 +61,7 @@ def cmd_manifest(args: argparse.Namespace) -> int:
     if manifest.bad and not args.skip_bad_lines:  # before the model is loaded
         raise ManifestError(manifest.path, manifest.bad)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
-                    smpl_gender=args.smpl_gender)
+                    smpl_gender=args.smpl_gender, device=process_device(args.device))
     out = Path(args.out).expanduser()
     try:
         summary = run_manifest(draper, manifest, out, rank=rank, world_size=world_size, outputs=args.outputs,

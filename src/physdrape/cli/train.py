@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import torch
 
-from physdrape.cli.common import CLIError
+from physdrape.cli.common import CLIError, add_device_argument, process_device
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -32,7 +32,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
-        trainer = Trainer(config, DrapeSource(config.data, model=config.model), args.run_dir)
+        trainer = Trainer(config, DrapeSource(config.data, model=config.model), args.run_dir,
+                          device=process_device(args.device))
         trainer.run(resume=args.resume)
         if distributed:
             dist.barrier()  # no rank tears gloo down while another still talks to it
@@ -57,7 +58,7 @@ def _train_recipe(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     run_recipe(args.recipe, args.run_dir, source=lambda config: DrapeSource(config.data, model=config.model),
-               command=shlex.join(["physdrape", *sys.argv[1:]]), resume=args.resume)
+               command=shlex.join(["physdrape", *sys.argv[1:]]), resume=args.resume, device=args.device)
     return 0
 
 
@@ -81,4 +82,5 @@ def add_parser(sub) -> None:
     train.add_argument("--resume", action="store_true", help="continue from the run directory's latest checkpoint")
     train.add_argument("--steps", type=int, help="override optim.steps")
     train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
+    add_device_argument(train)
     train.set_defaults(func=cmd_train, interrupted=_interrupted)

@@ -91,8 +91,9 @@ def _finished_step(stage_dir: Path) -> int:
 
 
 def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable[[TrainConfig], SampleSource],
-               command: str, resume: bool = False, log=print) -> dict:
-    """Train the recipe's stages in order into run_dir (see the module docstring); returns the record.
+               command: str, resume: bool = False, log=print, device: str = "cpu") -> dict:
+    """Train the recipe's stages in order into run_dir (see the module docstring) on `device`;
+    returns the record.
 
     source: builds the sample source of a stage from its config (the CLI: `DrapeSource(config.data, model=config.model)`).
     """
@@ -112,7 +113,7 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
         if done < config.optim.steps:
             log(f"[recipe] stage {stage.name}: {stage.config}, steps {done}..{config.optim.steps}")
             t0 = time.perf_counter()
-            Trainer(config, source(config), stage_dir).run(resume=done > 0)
+            Trainer(config, source(config), stage_dir, device=device).run(resume=done > 0)
             spent[stage.name] = spent.get(stage.name, 0.0) + time.perf_counter() - t0
         record["stages"].append({"name": stage.name, "config": str(stage.config), "seed": config.optim.seed,
                                  "steps": config.optim.steps, "init_from": config.optim.init_from,
