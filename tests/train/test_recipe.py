@@ -86,7 +86,7 @@ def test_an_interrupted_stage_resumes(recipe, tmp_path):
 
 @pytest.mark.parametrize("text, pattern", [
     ("stages: []", "at least one stage"),
-    ("stages: [{name: a}]", "exactly `name` and `config`"),
+    ("stages: [{name: a}]", "`name`, `config` and optionally `until`"),
     ("stages: [{name: ../a, config: c.yaml}]", "plain directory name"),
     ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m}", "exactly model_out and record_out"),
     ("steps: 3", "a list `stages`"),
@@ -102,3 +102,18 @@ def test_the_shipped_recipe_names_existing_configs():
     recipe = load_recipe("configs/recipes/shipped.yaml")
     assert [s.config.is_file() for s in recipe.stages] == [True] * len(recipe.stages)
     assert str(recipe.model_out) == "src/physdrape/assets/models/cpu_default"
+
+
+def test_until_stops_a_stage_on_its_full_schedule(tmp_path):
+    first = _config(tmp_path / "a.yaml", solver="explicit", steps=4, seed=1)
+    second = _config(tmp_path / "b.yaml", solver="explicit", steps=2, seed=2)
+    path = tmp_path / "recipe.yaml"
+    path.write_text(yaml.safe_dump({"stages": [{"name": "one", "config": str(first), "until": 2},
+                                               {"name": "two", "config": str(second)}]}))
+    record = run_recipe(path, tmp_path / "run", source=source, command="c", log=lambda _: None)
+    assert ckpt.latest_checkpoint(tmp_path / "run" / "one").name == "step-00000002"
+    assert (record["stages"][0]["steps"], record["stages"][0]["schedule_steps"]) == (2, 4)
+    assert all(s["wall_s"] > 0 for s in record["stages"])
+    # the learning rate at the stop is that of the 4-step schedule, not of a 2-step one
+    lines = [json.loads(line) for line in (tmp_path / "run" / "one" / "metrics.jsonl").read_text().splitlines()]
+    assert lines[-1]["step"] == 2 and lines[-1]["lr"] == pytest.approx(1e-3 * 0.1 ** (2 / 4))

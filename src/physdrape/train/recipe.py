@@ -3,17 +3,19 @@
 A recipe is a YAML file::
 
     stages:                      # run in order; stage k > 0 starts from stage k-1's weights
-      - {name: explicit, config: configs/cpu_default.yaml}
-      - {name: two_level, config: configs/cpu_two_level.yaml}
+      - {name: gnn, config: configs/global/gnn_energy.yaml, until: 1200}
+      - {name: full, config: configs/global/full_teacher.yaml}
     ship:                        # optional: where the last stage's model and record go
       model_out: src/physdrape/assets/models/cpu_default
       record_out: docs/training/shipped
 
 `physdrape train --recipe FILE --run-dir DIR [--resume]` trains stage k into DIR/<name>, with
 ``optim.init_from`` set to DIR/<previous name> (whatever the stage's config says), skips stages
-that already reached their steps, and resumes an interrupted stage from its latest checkpoint.
-DIR/recipe.json records the command, and per stage its config, seed, steps and the wall time
-spent in it (summed over resumed segments). With ``ship``, the last stage's model is exported and
+that already reached their steps, and resumes an interrupted stage from its latest checkpoint. A
+stage's optional ``until`` stops it at that step, with the learning-rate schedule of its config's
+full ``optim.steps`` (a run stopped there by hand is the same run). DIR/recipe.json records the
+command, and per stage its config, seed, steps and the wall time spent in it (summed over its
+resumed segments, as its metrics.jsonl logged them). With ``ship``, the last stage's model is exported and
 every stage's training record written into record_out/<stage name> (`physdrape.train.ship`), with
 the recipe's record beside them.
 """
@@ -21,7 +23,6 @@ the recipe's record beside them.
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,10 +35,12 @@ from physdrape.train.trainer import SampleSource, TrainConfig, Trainer
 
 @dataclass(frozen=True)
 class Stage:
-    """One stage: a name (its run sub-directory) and the YAML run config it trains."""
+    """One stage: a name (its run sub-directory), the YAML run config it trains and the step it
+    stops at (None: the config's optim.steps)."""
 
     name: str
     config: Path
+    until: int | None = None
 
 
 @dataclass(frozen=True)
@@ -58,12 +61,15 @@ def load_recipe(path: str | Path) -> Recipe:
                           "optional `ship` {model_out, record_out}")
     stages = []
     for k, item in enumerate(data["stages"]):
-        if not isinstance(item, dict) or set(item) != {"name", "config"}:
-            raise ConfigError(f"{path}: stage {k} must have exactly `name` and `config`, got {item!r}")
+        if not isinstance(item, dict) or not {"name", "config"} <= set(item) <= {"name", "config", "until"}:
+            raise ConfigError(f"{path}: stage {k} must have `name`, `config` and optionally `until`, got {item!r}")
+        until = item.get("until")
+        if until is not None and (not isinstance(until, int) or until < 1):
+            raise ConfigError(f"{path}: stage {k}'s `until` must be a step ≥ 1, got {until!r}")
         name = str(item["name"])
         if not name or "/" in name or name.startswith("."):
             raise ConfigError(f"{path}: stage name {name!r} must be a plain directory name")
-        stages.append(Stage(name, Path(item["config"])))
+        stages.append(Stage(name, Path(item["config"]), until))
     if not stages or len({s.name for s in stages}) != len(stages):
         raise ConfigError(f"{path}: give at least one stage, with distinct names")
     ship = data.get("ship") or {}
@@ -90,6 +96,25 @@ def _finished_step(stage_dir: Path) -> int:
     return int(latest.name.split("-")[-1]) if latest is not None else 0
 
 
+def logged_wall_s(stage_dir: Path, *, upto: int) -> float:
+    """Wall seconds a stage's training took up to step `upto`, from its metrics.jsonl: the sum over
+    its segments (each run or resumed run restarts wall_s) of the last logged wall_s."""
+    path = stage_dir / "metrics.jsonl"
+    if not path.is_file():
+        return 0.0
+    total = last = 0.0
+    for line in path.read_text().splitlines():
+        if not line.strip():
+            continue
+        entry = json.loads(line)
+        if entry["step"] > upto:
+            break
+        if entry["wall_s"] < last:  # a new segment
+            total += last
+        last = entry["wall_s"]
+    return total + last
+
+
 def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable[[TrainConfig], SampleSource],
                command: str, resume: bool = False, log=print, device: str = "cpu") -> dict:
     """Train the recipe's stages in order into run_dir (see the module docstring) on `device`;
@@ -104,20 +129,17 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
     if not resume and any((run_dir / s.name).exists() for s in recipe.stages):
         raise ConfigError(f"{run_dir} already holds stages of a run: pass --resume to continue it, or choose "
                           "another --run-dir")
-    previous = json.loads(record_path.read_text()) if record_path.is_file() else {}
-    spent = {s["name"]: s.get("wall_s", 0.0) for s in previous.get("stages", [])}
     record = {"command": command, "recipe": str(recipe_path), "stages": []}
     for stage, config in zip(recipe.stages, configs):
         stage_dir = run_dir / stage.name
         done = _finished_step(stage_dir)
-        if done < config.optim.steps:
-            log(f"[recipe] stage {stage.name}: {stage.config}, steps {done}..{config.optim.steps}")
-            t0 = time.perf_counter()
-            Trainer(config, source(config), stage_dir, device=device).run(resume=done > 0)
-            spent[stage.name] = spent.get(stage.name, 0.0) + time.perf_counter() - t0
+        stop = min(stage.until or config.optim.steps, config.optim.steps)
+        if done < stop:
+            log(f"[recipe] stage {stage.name}: {stage.config}, steps {done}..{stop}")
+            Trainer(config, source(config), stage_dir, device=device).run(resume=done > 0, until=stop)
         record["stages"].append({"name": stage.name, "config": str(stage.config), "seed": config.optim.seed,
-                                 "steps": config.optim.steps, "init_from": config.optim.init_from,
-                                 "wall_s": spent.get(stage.name, 0.0)})
+                                 "steps": stop, "schedule_steps": config.optim.steps,
+                                 "init_from": config.optim.init_from, "wall_s": logged_wall_s(stage_dir, upto=stop)})
         write_text(record_path, json.dumps(record, indent=2) + "\n")
     record["wall_s"] = sum(s["wall_s"] for s in record["stages"])
     write_text(record_path, json.dumps(record, indent=2) + "\n")
