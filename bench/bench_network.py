@@ -27,7 +27,7 @@ import torch
 from bench_model import problem
 
 from physdrape.atomic import write_text
-from physdrape.eval.report import provenance
+from physdrape.provenance import provenance
 from physdrape.model import ModelConfig, PhysDrape
 from physdrape.model.gnn import level_schedule
 

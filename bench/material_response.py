@@ -47,7 +47,7 @@ import torch
 from physdrape.api import Draper
 from physdrape.atomic import write_text
 from physdrape.eval.evaluate import Contact, total_energy
-from physdrape.eval.report import provenance
+from physdrape.provenance import provenance
 from physdrape.physics import energy_terms, relax
 from physdrape.physics.metrics import drape_metrics
 from physdrape.physics.oracle import silenced

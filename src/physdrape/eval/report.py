@@ -6,14 +6,10 @@ from __future__ import annotations
 import json
 import math
 import os
-import platform
-import subprocess
 from pathlib import Path
 
-import numpy as np
-import torch
-
 from physdrape.atomic import write_text
+from physdrape.provenance import provenance
 
 #: Context only: the paper's numbers (CLOTH3D garments, SMPL bodies) — different data from ours.
 PUBLISHED_NOTE = "published, CLOTH3D/SMPL — different data"
@@ -30,23 +26,6 @@ PUBLISHED_ABLATION = [
     {"method": "GNN + collision", "strain": 0.21, "bend": 0.004, "b2g_percent": 0.06},
     {"method": "GNN + solver + collision (full)", "strain": 0.15, "bend": 0.004, "b2g_percent": 0.05},
 ]
-
-
-def provenance() -> dict:
-    """Versions of PhysDrape, its dependencies and the platform, and the git commit (dirty or not)."""
-    import physdrape
-
-    def git(*args: str) -> str | None:
-        try:
-            return subprocess.run(["git", *args], cwd=Path(__file__).parent, capture_output=True, check=False,
-                                  text=True, timeout=5).stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            return None
-
-    commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain")
-    return {"physdrape": physdrape.__version__, "torch": torch.__version__, "numpy": np.__version__,
-            "python": platform.python_version(), "git_commit": commit or None,
-            "git_dirty": bool(status) if status is not None else None, "platform": platform.platform()}
 
 
 def _fmt(value, digits: int = 3) -> str:
