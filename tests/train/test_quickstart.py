@@ -19,7 +19,7 @@ pytestmark = pytest.mark.anny
 def test_quickstart_config_lowers_the_loss_on_the_real_pipeline(tmp_path, tiny_split, anny_body):
     config = load_config(TrainConfig, QUICKSTART)
     assert config.model.variant.value == "gnn" and config.model.levels > 0 and config.data.max_garments == 6
-    assert config.loss.teacher_weight > 0 and config.data.instances and config.optim.validate_every
+    assert config.data.instances and config.optim.validate_every
     # The quickstart's model, loss and optimiser on real cached instances (the tiny split's 2
     # training garments, one held out; Anny bodies), 12 steps on one batch, as in test_training.
     data = replace(config.data, split_dir=tiny_split, max_garments=2, validation_garments=1, instance_count=2,
@@ -32,8 +32,9 @@ def test_quickstart_config_lowers_the_loss_on_the_real_pipeline(tmp_path, tiny_s
     source.make_batch = lambda seeds: fixed
     history = Trainer(config, source, tmp_path / "run", progress=False, tensorboard=False).run()
     losses = [r["loss"] for r in history]
-    first, last = sum(losses[:3]) / 3, sum(losses[-3:]) / 3
-    assert last < 0.98 * first, f"the loss did not fall: {first:.4g} → {last:.4g} ({losses})"
+    # the loss holds E_grav, an offset of the garment's height: a fall of 1 % of it is a fall of
+    # several percent of the energy above equilibrium
+    assert all(b <= a for a, b in zip(losses, losses[1:])) and losses[-1] < 0.99 * losses[0], losses
     assert len((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()) == 12
     assert len((tmp_path / "run" / "validation.jsonl").read_text().splitlines()) == 2  # steps 0 and 12
 
