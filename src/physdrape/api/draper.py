@@ -97,8 +97,8 @@ class Draper:
         if not path.exists():
             hint = "the bundled model is not installed" if checkpoint is None else f"{path} does not exist"
             raise DrapeError(
-                f"no PhysDrape model: {hint}. Train one with `physdrape train --config configs/cpu_default.yaml "
-                f"--run-dir runs/cpu_default` and pass `--checkpoint runs/cpu_default` (API: "
+                f"no PhysDrape model: {hint}. Train one with `physdrape train --recipe configs/recipes/shipped.yaml "
+                f"--run-dir runs/shipped` and pass `--checkpoint runs/shipped/full` (API: "
                 f"Draper(checkpoint=...)), or copy a checkpoint directory (model.safetensors + config.json) to "
                 f"{ckpt.bundled_model()}")
         try:

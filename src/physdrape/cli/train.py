@@ -75,7 +75,7 @@ def _interrupted(args, argv) -> str:
 def add_parser(sub) -> None:
     """The `train` subcommand."""
     train = sub.add_parser("train", help="train a PhysDrape model (self-supervised, resumable)")
-    train.add_argument("--config", help="YAML run config (see configs/cpu_default.yaml)")
+    train.add_argument("--config", help="YAML run config (see configs/quickstart.yaml, configs/global/)")
     train.add_argument("--recipe", help="YAML recipe: configs trained as consecutive stages, then shipped "
                        "(configs/recipes/shipped.yaml trains the bundled model)")
     train.add_argument("--run-dir", required=True, help="directory for checkpoints, metrics.jsonl, TensorBoard")

@@ -1,7 +1,7 @@
 """Ship a trained model: its weights and config into the package, its training record into docs.
 
     python -m physdrape.train.ship RUN_DIR --model-out src/physdrape/assets/models/cpu_default \\
-        --record-out docs/training/cpu_default --command "physdrape train --config ... --run-dir ..."
+        --record-out docs/training/RUN --command "physdrape train --config ... --run-dir ..."
 
 Writes MODEL_OUT/{model.safetensors, config.json} (no optimiser state) and RECORD_OUT/
 {metrics.jsonl, loss_curve.png, record.json} (step, wall time, seed, config, command), with
