@@ -95,6 +95,7 @@ except ImportError as exc:  # optional, bench-only dependency
     sys.exit(2)
 
 from physdrape.body.anny_body import get_anny_body
+from physdrape.checkpoint import load_model
 from physdrape.eval.evaluate import (
     Contact,
     EvalConfig,
@@ -103,7 +104,7 @@ from physdrape.eval.evaluate import (
     run_model,
     total_energy,
 )
-from physdrape.checkpoint import load_model
+from physdrape.eval.report import finite_or_none
 from physdrape.model import Variant
 from physdrape.physics import Material
 from physdrape.physics.contact import DEFAULT_MARGIN
@@ -266,16 +267,6 @@ def _write_json_atomic(path: str, payload: dict) -> None:
         raise
 
 
-def _finite_or_none(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite_or_none(v) for v in value]
-    return value
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT)
@@ -333,7 +324,7 @@ def main(argv=None) -> int:
                             contact))
         rows.append(row)
         brief = {k: v for k, v in row.items() if k != "vbd_history"}
-        print(json.dumps(_finite_or_none(brief)), file=sys.stderr)
+        print(json.dumps(finite_or_none(brief)), file=sys.stderr)
         del batch
 
     def fmt_time(r):
@@ -376,7 +367,7 @@ def main(argv=None) -> int:
           f"and the energy checks; VBD speed {med(r['vbd_wall_s'] / max(r['vbd_sim_s'], 1e-9) for r in rows):.3g} "
           f"s wall per simulated s (median).")
     if args.json:
-        _write_json_atomic(args.json, _finite_or_none({"checkpoint": info, "config": vars(args),
+        _write_json_atomic(args.json, finite_or_none({"checkpoint": info, "config": vars(args),
                                                         "newton": newton.__version__, "instances": rows}))
     return 0
 

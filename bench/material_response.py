@@ -47,12 +47,13 @@ import torch
 from physdrape.api import Draper
 from physdrape.atomic import write_text
 from physdrape.eval.evaluate import Contact, total_energy
-from physdrape.provenance import provenance
+from physdrape.eval.report import finite_or_none
 from physdrape.physics import energy_terms, relax
 from physdrape.physics.metrics import drape_metrics
 from physdrape.physics.oracle import silenced
 from physdrape.physics.presets import MATERIAL_PRESETS, material_preset
 from physdrape.pipeline import POSE_DTYPE, DrapePipeline, Job
+from physdrape.provenance import provenance
 from physdrape.render import material_sweep_figure
 from physdrape.render.hem import hem_drop, hem_loop
 
@@ -137,16 +138,6 @@ def run_garment(spec: str, names: list[str], draper: Draper, state, pipe64: Drap
     return rows, fast, oracle_results, same
 
 
-def _finite_or_none(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite_or_none(v) for v in value]
-    return value
-
-
 def _f(value, digits: int = 3) -> str:
     if isinstance(value, float) and not math.isfinite(value):
         return "–"
@@ -229,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
             material_sweep_figure(oracle_results, args.materials, out.parent / f"{stem}_oracle.png",
                                   note="oracle (relax from the fast drape)")
     text = markdown(record)
-    write_text(out.with_suffix(".json"), json.dumps(_finite_or_none(record), indent=1, allow_nan=False, default=str) + "\n")
+    write_text(out.with_suffix(".json"), json.dumps(finite_or_none(record), indent=1, allow_nan=False, default=str) + "\n")
     write_text(out.with_suffix(".md"), text)
     print(text)
     return 0

@@ -57,16 +57,12 @@ from physdrape.eval.instances import (
     split_instances,
 )
 from physdrape.eval.reference_cache import ReferenceCache, reference_key
-from physdrape.eval.report import (
-    PUBLISHED_ABLATION,
-    PUBLISHED_MAIN,
-    PUBLISHED_NOTE,
-    provenance,
-)
+from physdrape.eval.report import PUBLISHED_ABLATION, PUBLISHED_MAIN, PUBLISHED_NOTE
 from physdrape.model import DrapeInput, PhysDrape, Variant
 from physdrape.physics import energy
 from physdrape.physics.metrics import drape_metrics
 from physdrape.physics.oracle import relax, silenced
+from physdrape.provenance import provenance
 
 __all__ = [
     "ABLATION_ROWS",
@@ -341,7 +337,7 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
     if config.makehuman_dir:
         try:
             mh, notes = makehuman_instances(config, body)
-        except Exception as exc:  # noqa: BLE001 (an optional set never sinks the main evaluation)
+        except Exception as exc:
             mh, notes = [], [f"MakeHuman set skipped ({type(exc).__name__}: {exc})"]
         for note in notes:
             log(f"[eval] {note}")

@@ -176,7 +176,7 @@ def makehuman_instances(config: EvalConfig, body) -> tuple[list[Instance], list[
                 continue
             templates.append(Template.from_mesh(g.verts, g.faces, name=path.stem))
             keys.append(key)
-        except Exception as exc:  # noqa: BLE001 (an optional set: report and go on)
+        except Exception as exc:
             notes.append(f"MakeHuman: {path.name} skipped ({type(exc).__name__}: {exc})")
     if not templates:
         return [], notes

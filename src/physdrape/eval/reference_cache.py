@@ -91,7 +91,7 @@ class ReferenceCache:
             if x.dtype != torch.float64 or tuple(x.shape) != (num_verts, 3):
                 raise ValueError(f"positions of {x.dtype}, shape {tuple(x.shape)}; expected float64 ({num_verts}, 3)")
             record = dict(entry["record"])
-        except Exception as exc:  # noqa: BLE001 (a damaged entry is recomputed, whatever the damage)
+        except Exception as exc:
             warnings.warn(f"reference cache entry {record_path} is damaged ({type(exc).__name__}: {exc}); "
                           "running the oracle again and rewriting it", RuntimeWarning, stacklevel=2)
             self.misses += 1

@@ -1,4 +1,4 @@
-"""The evaluation's record: Markdown tables of the results, the provenance of a run, and the
+"""The evaluation's record: Markdown tables of the results and the
 atomic writing of ``eval.json`` / ``eval.md`` (the protocol itself is `physdrape.eval.evaluate`)."""
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ import os
 from pathlib import Path
 
 from physdrape.atomic import write_text
-from physdrape.provenance import provenance
 
 #: Context only: the paper's numbers (CLOTH3D garments, SMPL bodies) — different data from ours.
 PUBLISHED_NOTE = "published, CLOTH3D/SMPL — different data"
@@ -164,12 +163,12 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
     return "\n".join(out) + "\n"
 
 
-def _finite_or_none(value):
-    """The results with NaN/inf floats as null (strict JSON)."""
+def finite_or_none(value):
+    """`value` with every NaN/inf float, in nested dicts, lists and tuples, as None (strict JSON)."""
     if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
+        return {k: finite_or_none(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_finite_or_none(v) for v in value]
+        return [finite_or_none(v) for v in value]
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
@@ -179,6 +178,6 @@ def write_results(results: dict, out_dir: str | os.PathLike, *, stem: str = "eva
     """Write `<stem>.json` (every number) and `<stem>.md` (the tables) atomically into out_dir."""
     out_dir = Path(out_dir)
     json_path, md_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-    write_text(json_path, json.dumps(_finite_or_none(results), indent=1, allow_nan=False) + "\n")
+    write_text(json_path, json.dumps(finite_or_none(results), indent=1, allow_nan=False) + "\n")
     write_text(md_path, render_markdown(results))
     return json_path, md_path

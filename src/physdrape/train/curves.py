@@ -60,6 +60,13 @@ def plot_metrics(records: list[dict], out: str | os.PathLike, *, window: int = 2
     ax.set_xlabel("step")
     ax.set_title("learned η (explicit solver: m/N; two-level: a step fraction), γ, δ")
     ax.legend(fontsize=8)
+    _save(fig, out)
+
+
+def _save(fig, out: str | os.PathLike) -> None:
+    """Write the figure as a PNG atomically and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     try:
         with atomic_path(out) as tmp:
@@ -99,12 +106,7 @@ def plot_validation(records: list[dict], out: str | os.PathLike) -> None:
         ax.legend(fontsize=8)
     axes[0].set_yscale("log")
     fig.suptitle("held-out validation set (garments and bodies never trained on)", fontsize=11)
-    fig.tight_layout()
-    try:
-        with atomic_path(out) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-    finally:
-        plt.close(fig)
+    _save(fig, out)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -22,10 +22,9 @@ from physdrape.garments.split import SPLIT_FORMAT, load_or_generate
 from physdrape.model import DrapeInput
 from physdrape.model.config import ModelConfig
 from physdrape.physics import Material
-from physdrape.train.materials import sample_material
 from physdrape.pipeline import DrapePipeline, Job, Template
 from physdrape.train.instances import InstanceCache, part_pool
-
+from physdrape.train.materials import sample_material
 
 
 @dataclass(frozen=True)

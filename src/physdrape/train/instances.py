@@ -122,7 +122,7 @@ class InstanceCache:
         try:
             found = load_file(str(path))
             return found["x_init"], found["teacher"]
-        except Exception as exc:  # noqa: BLE001 (safetensors raises several types on a damaged file)
+        except Exception as exc:
             raise InstanceCacheError(f"{path} cannot be read ({type(exc).__name__}: {exc}); delete it and run "
                                      "again: the missing instances are rebuilt") from exc
 

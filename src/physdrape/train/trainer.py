@@ -21,13 +21,14 @@ from typing import Protocol
 
 import torch
 import torch.distributed as dist
+
+from physdrape import checkpoint as ckpt
 from physdrape.atomic import write_text
-from physdrape.devices import resolve_device
 from physdrape.config_io import to_mapping
-from physdrape.physics.metrics import b2g_percent
+from physdrape.devices import resolve_device
 from physdrape.model import ModelConfig, PhysDrape
 from physdrape.model.stretching_solver import SolverKind
-from physdrape import checkpoint as ckpt
+from physdrape.physics.metrics import b2g_percent
 from physdrape.train.data import DataConfig, TrainingBatch
 from physdrape.train.loss import LossConfig, drape_loss
 

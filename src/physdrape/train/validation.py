@@ -26,9 +26,9 @@ from dataclasses import replace
 import torch
 
 from physdrape.model import PhysDrape, Variant
+from physdrape.physics.energy import drape_energies, total_energy
 from physdrape.physics.metrics import b2g_percent
 from physdrape.train.data import TrainingBatch
-from physdrape.physics.energy import drape_energies, total_energy
 
 #: Row name → (variant, solver steps, with the network).
 ROWS = {
