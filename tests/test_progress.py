@@ -29,3 +29,19 @@ def test_directory_size(tmp_path):
     (tmp_path / "d").mkdir()
     (tmp_path / "d" / "b").write_bytes(b"x" * 1_000_000)
     assert directory_size(tmp_path) == "3 MB"
+
+
+def test_iteration_progress_reports_at_most_once_per_interval():
+    from types import SimpleNamespace
+
+    from physdrape.progress import iteration_progress
+
+    now = [0.0]
+    out = io.StringIO()
+    report = iteration_progress("oracle polish", every=5.0, stream=out, clock=lambda: now[0])
+    for k, t in enumerate([1.0, 4.9, 5.1, 6.0, 10.2]):
+        now[0] = t
+        report(SimpleNamespace(iteration=k, residual=0.5 / (k + 1), energy=0.25, wall=t))
+    lines = out.getvalue().splitlines()
+    assert lines == ["[physdrape] oracle polish: iteration 2, residual 0.167, E 0.25 J, 5 s",
+                     "[physdrape] oracle polish: iteration 4, residual 0.1, E 0.25 J, 10 s"]

@@ -39,6 +39,25 @@ def slow_phase(message: str, *, after: float = ANNOUNCE_AFTER_S, done: Callable[
             print(f"[physdrape] ... done in {time.perf_counter() - start:.0f} s{extra}", file=out, flush=True)
 
 
+def iteration_progress(label: str, *, every: float = ANNOUNCE_AFTER_S, stream=None,
+                       clock: Callable[[], float] = time.perf_counter) -> Callable:
+    """A per-iteration callback for a long iterative solve (the oracle's `relax(callback=...)`):
+    at most once every `every` seconds it prints ``[physdrape] label: iteration k, residual r,
+    E e J, t s`` from the iteration's record (its iteration, residual, energy and wall fields), so a
+    solve of minutes says where it is."""
+    out = sys.stderr if stream is None else stream
+    last = [clock()]
+
+    def report(record, _x=None) -> None:
+        now = clock()
+        if now - last[0] >= every:
+            last[0] = now
+            print(f"[physdrape] {label}: iteration {record.iteration}, residual {record.residual:.3g}, "
+                  f"E {record.energy:.5g} J, {record.wall:.0f} s", file=out, flush=True)
+
+    return report
+
+
 def directory_size(path) -> str:
     """The total size of the files under `path`, e.g. "790 MB" (for cache messages)."""
     total = sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())

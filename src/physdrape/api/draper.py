@@ -32,7 +32,15 @@ from physdrape.devices import DeviceError, resolve_device
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, energy_terms, internal_forces, relax
 from physdrape.physics.metrics import drape_metrics
-from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, Job, Template, select
+from physdrape.pipeline import (
+    DEFAULT_DTYPE,
+    POSE_DTYPE,
+    DrapePipeline,
+    Job,
+    Template,
+    select,
+)
+from physdrape.progress import iteration_progress
 
 
 @dataclass(frozen=True)
@@ -362,7 +370,7 @@ class Draper:
             body_of_garment = torch.tensor([job.body for job in pipeline_jobs], device="cpu")
             res = relax(x.to(device="cpu", dtype=torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,
                         time_budget_s=refine_time_s, contact_stiffness=self.model_config.contact_stiffness,
-                        margin=self.model_config.margin)
+                        margin=self.model_config.margin, callback=iteration_progress("oracle polish (refine)"))
             x = res.x.to(device=self.device, dtype=self.dtype)
         t4 = time.perf_counter()
         results = self._results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm)

@@ -10,7 +10,7 @@ import torch
 
 from physdrape.api.placement import check_extent, check_scale, unit_scale
 from physdrape.api.types import DrapeError, FitResult
-
+from physdrape.progress import iteration_progress
 
 #: Height of a top's collar (its highest point) above the canonical body's ``neck01`` joint [m]
 #: (the bundled T-shirt's; the generated tops share its neckline construction).
@@ -150,7 +150,7 @@ def fit_garment(path: str | Path, *, align: bool = True, scale: float = 1.0, ite
         garment = Garment.from_mesh(verts, faces, name=name, dtype=torch.float64)
         cloth = Cloth.build(garment)
         result = relax(torch.from_numpy(verts), cloth, BodySurface(canonical, faces_b), max_iters=iters,
-                       time_budget_s=time_budget_s)
+                       time_budget_s=time_budget_s, callback=iteration_progress("fit: relaxing on the body"))
         verts = result.x.numpy()
         stats = {"iterations": len(result.history) - 1, "reason": result.reason, "wall_time_s": result.wall_time,
                  "residual": float(result.residual[0]),
