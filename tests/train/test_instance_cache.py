@@ -44,6 +44,9 @@ def test_cache_holds_teacher_drapes_that_lower_the_energy_and_grows_without_chan
     assert (tmp_path / "cache" / "train" / "000002.safetensors").is_file()
     with pytest.raises(InstanceCacheError, match="other settings"):
         DrapeSource(replace(data, teacher_steps=5), model=SMALL, body=anny_body)
+    other = source.templates[::-1]  # a split whose garment 0 is another garment
+    with pytest.raises(InstanceCacheError, match="another garment split"):
+        DrapeSource(data, model=SMALL, body=anny_body, templates=other)
 
 
 def test_teacher_term_pulls_toward_the_teacher(tmp_path, tiny_split, anny_body):

@@ -23,7 +23,7 @@ from physdrape.model import DrapeInput
 from physdrape.model.config import ModelConfig
 from physdrape.physics import Material
 from physdrape.pipeline import DrapePipeline, Job, Template
-from physdrape.train.instances import InstanceCache, part_pool
+from physdrape.train.instances import InstanceCache, InstanceCacheError, part_pool
 from physdrape.train.materials import sample_material
 
 
@@ -123,6 +123,13 @@ class DrapeSource:
                              {"train": config.instance_count, "val": config.validation_count}, log=log)
             self._train = self.cache.part("train")[:config.instance_count]
             self._tensors = [self.cache.tensors("train", i) for i in range(len(self._train))]
+            for inst, (x_init, _) in zip(self._train, self._tensors):
+                template = self.templates[inst.garment] if inst.garment < len(self.templates) else None
+                if template is None or template.name != inst.name or template.num_verts != x_init.shape[0]:
+                    raise InstanceCacheError(
+                        f"the instance cache {config.instances} holds garment {inst.name} (index {inst.garment}, "
+                        f"{x_init.shape[0]} vertices), which this run's split does not have at that index: the "
+                        "cache was made from another garment split; delete the folder to rebuild it")
 
     def make_batch(self, seeds: list[int]) -> TrainingBatch:
         """The samples of `seeds`: each seed draws a cached instance, or else a training garment,
