@@ -24,7 +24,7 @@ from physdrape.model.config import ModelConfig
 from physdrape.physics import Material
 from physdrape.pipeline import DrapePipeline, Job, Template
 from physdrape.train.instances import InstanceCache, InstanceCacheError, part_pool
-from physdrape.train.materials import sample_material
+from physdrape.train.materials import draw_material
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ class DrapeSource:
             rng = np.random.default_rng(seed)
             g = int(rng.integers(len(self.templates)))
             body_ids.append(int(rng.integers(len(self.pool))))
-            material = sample_material(rng) if self.config.materials == "sampled" else Material()
+            material = draw_material(rng, self.config.materials)
             jobs.append(Job(self.templates[g], k, material))
         return TrainingBatch(self.pipeline.build(jobs, self.pool.state(body_ids)))
 

@@ -37,10 +37,9 @@ from physdrape.atomic import write_bytes, write_text
 from physdrape.body.pool import BodyPool
 from physdrape.model.config import ModelConfig
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
-from physdrape.physics import Material
 from physdrape.physics.energy import total_energy
 from physdrape.pipeline import DrapePipeline, Job, Template
-from physdrape.train.materials import sample_material
+from physdrape.train.materials import draw_material
 
 FORMAT = "physdrape-instances/1"
 PARTS = ("train", "val")
@@ -150,7 +149,6 @@ class InstanceCache:
 
     def _build(self, templates: list[Template], body, pools: dict[str, BodyPool], counts: dict[str, int], log) -> None:
         held_out = self.data.validation_garments
-        missing = {p: counts[p] - len(self.manifest["parts"][p]) for p in PARTS}
         dtype = getattr(torch, self.data.dtype)
         pipeline = DrapePipeline(body, dtype=dtype)
         solver = teacher_solver(self.model)
@@ -158,15 +156,13 @@ class InstanceCache:
                     "val": list(range(len(templates) - held_out, len(templates)))}
         started = time.perf_counter()
         for p in PARTS:
-            if missing[p] <= 0:
-                continue
             pool = pools[p]
             records = self.manifest["parts"][p]
             for i in range(len(records), counts[p]):
                 rng = np.random.default_rng([self.data.body_seed, PARTS.index(p), i])
                 g = garments[p][int(rng.integers(len(garments[p])))]
                 b = int(rng.integers(len(pool)))
-                material = _material(rng, self.data.materials)
+                material = draw_material(rng, self.data.materials)
                 state = pool.state(b)
                 drape = pipeline.build([Job(templates[g], 0, material)], state)
                 with torch.no_grad():
@@ -182,7 +178,3 @@ class InstanceCache:
                 total = sum(max(counts[q], len(self.manifest["parts"][q])) for q in PARTS)
                 print(f"[instances] {done}/{total} cached in {self.directory} ({time.perf_counter() - started:.0f} s)",
                       file=log, flush=True)
-
-
-def _material(rng: np.random.Generator, materials: str) -> Material:
-    return sample_material(rng) if materials == "sampled" else Material()

@@ -27,3 +27,9 @@ def sample_material(rng: np.random.Generator) -> Material:
         k_bend=log_uniform(*K_BEND_RANGE),
         density=float(rng.uniform(*DENSITY_RANGE)),
     )
+
+
+def draw_material(rng: np.random.Generator, materials: str) -> Material:
+    """The fabric of a training sample: drawn from HOOD's ranges ("sampled") or the default
+    ("default", `DataConfig.materials`)."""
+    return sample_material(rng) if materials == "sampled" else Material()
