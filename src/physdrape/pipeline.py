@@ -11,7 +11,10 @@ cached per template: its skinning transfer onto the body model and its rest-stat
 
 Devices: bodies are posed and garments skinned where the body model runs (the CPU, in
 `POSE_DTYPE`); the `DrapeInput` handed to the model (garments, cloth, X_init, body surfaces) is
-built on the pipeline's device, the templates' rest states cached there.
+built on the pipeline's device, the templates' rest states cached there. A `PosedBodies` holds the
+body surfaces (Warp BVHs) of one posed batch, built on first use: a caller that drapes on the
+same bodies again (the API, for a shape and pose it has seen) hands the same `PosedBodies` back
+and builds no surface twice.
 """
 
 from __future__ import annotations
@@ -76,6 +79,35 @@ class Template:
         return int(self.verts.shape[0])
 
 
+class PosedBodies:
+    """A posed body batch and its body surfaces, each built once, on first use.
+
+    Args:
+        state: the posed bodies (B bodies, in `POSE_DTYPE` where the body model runs).
+    """
+
+    def __init__(self, state: BodyState) -> None:
+        self.state = state
+        self._surfaces: dict[tuple, BodySurface] = {}
+
+    def surface(self, dtype: torch.dtype, device: torch.device | str) -> BodySurface:
+        """All B bodies as one `BodySurface` in `dtype` on `device` (the model's queries)."""
+        device = torch.device(device)
+        key = ("all", dtype, device)
+        if key not in self._surfaces:
+            self._surfaces[key] = BodySurface(self.state.verts.detach().to(device=device, dtype=dtype),
+                                              self.state.faces)
+        return self._surfaces[key]
+
+    def single(self, index: int) -> BodySurface:
+        """Body `index` alone as a `BodySurface` in the state's dtype and device (what the skinning
+        transfer holds the garment out of while it limits X_init's stretch)."""
+        key = ("one", index)
+        if key not in self._surfaces:
+            self._surfaces[key] = BodySurface(self.state.verts[index:index + 1].detach(), self.state.faces)
+        return self._surfaces[key]
+
+
 @dataclass(frozen=True)
 class Job:
     """One drape: `template` on body `body` of the posed batch, in `material`; `x_init` [m] (V, 3)
@@ -132,21 +164,23 @@ class DrapePipeline:
                                                              dtype=self.dtype).to(device=self.device)
         return self._garments[template.key]
 
-    def x_init(self, template: Template, state: BodyState, index: int = 0) -> Tensor:
+    def x_init(self, template: Template, state: BodyState | PosedBodies, index: int = 0) -> Tensor:
         """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype."""
+        posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         with torch.no_grad():
-            return self.transfer(template).apply(select(state, index))[0]
+            return self.transfer(template).apply(select(posed.state, index), surface=posed.single(index))[0]
 
-    def build(self, jobs: Sequence[Job], state: BodyState) -> DrapeInput:
+    def build(self, jobs: Sequence[Job], state: BodyState | PosedBodies) -> DrapeInput:
         """The model's input for `jobs` on the posed bodies of `state` (one job per garment), on the
-        pipeline's device."""
+        pipeline's device; a `PosedBodies` lends its surfaces (built on first use, then reused)."""
         if not jobs:
             raise ValueError("no jobs to drape")
         device = self.device
-        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, state, job.body))
+        posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
+        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body))
                   .to(device=device, dtype=self.dtype) for job in jobs]
         batch = GarmentBatch.pack([self.garment(job.template) for job in jobs])
         cloth = Cloth.build(batch, [job.material for job in jobs])
-        bodies = BodySurface(state.verts.detach().to(device=device, dtype=self.dtype), state.faces)
+        bodies = posed.surface(self.dtype, device)
         body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)
         return DrapeInput(batch, cloth, torch.cat(x_init), bodies, body_of_job[batch.vert_garment])

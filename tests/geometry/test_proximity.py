@@ -201,6 +201,29 @@ def test_open_mesh_winding_number_is_robust():
     assert q.inside[x.norm(dim=-1) < 0.1].all()
 
 
+def test_interpenetrating_parts_inside_follows_winding_number():
+    """Two overlapping spheres in one mesh (like posed limbs pressed into the torso): the
+    pseudo-normal sign is wrong inside the overlap, so the winding number decides there; away
+    from it the surface is clean and no winding number is evaluated."""
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.10)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
+    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    x = sample_points(verts, faces, 1500, 500, seed=4, offset=0.06)
+    surface = BodySurface(verts, faces)
+    q = surface.query(x)
+    wn = brute_force_winding_number(x, verts, faces)
+    dist = brute_force_closest(x, verts, faces)[0]
+    clear = (dist > 1e-5) & ((wn - 0.5).abs() > 0.02)
+    assert torch.equal(q.inside[clear], (wn > 0.5)[clear])
+    pseudo = BodySurface(verts, faces, sign_method=SignMethod.PSEUDO_NORMAL).query(x)
+    assert (pseudo.inside[clear] != (wn > 0.5)[clear]).sum() > 10  # the overlap does fool the pseudo-normal
+    doubtful = surface.doubtful_faces()[0]
+    centroids = verts[faces].mean(1)
+    assert doubtful[(centroids[:, 0] > 0.095) & (centroids[:, 0] < 0.15)].all()  # around the overlap
+    assert not doubtful[centroids[:, 0] < -0.05].any()  # the far side of the big sphere is clean
+
+
 def test_gradients_match_finite_differences():
     verts, faces = bumpy_blob()
     x = sample_points(verts, faces, 160, 40, seed=3)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,10 +38,15 @@ from physdrape.pipeline import (
     POSE_DTYPE,
     DrapePipeline,
     Job,
+    PosedBodies,
     Template,
     select,
 )
 from physdrape.progress import iteration_progress
+
+
+#: Posed body batches a `Draper` keeps, with their surfaces, for drapes on the same shape and poses.
+POSED_CACHE_SIZE = 8
 
 
 @dataclass(frozen=True)
@@ -135,6 +141,8 @@ class Draper:
         self._templates: dict[tuple[str, str], Template] = {}
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
         self._detached: dict[tuple[str, str], str | None] = {}
+        #: the last few posed body batches (their surfaces built on first use), by rig, shapes and poses
+        self._posed: OrderedDict[tuple, PosedBodies] = OrderedDict()
 
     # ------------------------------------------------------------------ inputs
     def body(self, rig: str = "anny"):
@@ -313,6 +321,22 @@ class Draper:
                 bar.close()
         return [results[i] for i in range(n)]
 
+    def _posed_bodies(self, rig: str, shapes: Tensor, poses: Tensor, labels: list[str]) -> PosedBodies:
+        """The bodies of `rig` in `shapes` and `poses`, posed and (with `check_pose`) checked for arms
+        through the torso once; the last `POSED_CACHE_SIZE` batches are kept with their surfaces."""
+        key = (rig, self.check_pose, shapes.shape, poses.shape, shapes.cpu().numpy().tobytes(), poses.cpu().numpy().tobytes())
+        if key in self._posed:
+            self._posed.move_to_end(key)
+            return self._posed[key]
+        body = self.body(rig)
+        state = body(shapes, poses)
+        if self.check_pose and checks_arms(rig):
+            self._refuse_penetrating_poses(state, body, labels)
+        posed = self._posed[key] = PosedBodies(state)
+        while len(self._posed) > POSED_CACHE_SIZE:
+            self._posed.popitem(last=False)
+        return posed
+
     def _refuse_penetrating_poses(self, state: BodyState, body, labels: list[str]) -> None:
         """A static drape cannot resolve cloth pinched between arm and torso: refuse such poses."""
         counts = arm_torso_penetration(state, body).tolist()
@@ -340,9 +364,8 @@ class Draper:
         slot = {pose_id: k for k, pose_id in enumerate(poses)}
         pose_t = torch.cat([p.pose for p in poses.values()]).to(POSE_DTYPE)
         shapes = torch.cat([shape if p.shape is None else p.shape for p in poses.values()]).to(POSE_DTYPE)
-        state = body(shapes, pose_t)
-        if self.check_pose and checks_arms(rig):
-            self._refuse_penetrating_poses(state, body, [p.label for p in poses.values()])
+        posed = self._posed_bodies(rig, shapes, pose_t, [p.label for p in poses.values()])
+        state = posed.state
         t1 = time.perf_counter()
         pipeline_jobs, following = [], []
         for k, job in enumerate(jobs):
@@ -356,7 +379,7 @@ class Draper:
                                                 transforms, select(state, b))
             pipeline_jobs.append(Job(job.template, b, job.material, x_init))
             following.append(transforms)
-        inp = pipeline.build(pipeline_jobs, state)
+        inp = pipeline.build(pipeline_jobs, posed)
         t2 = time.perf_counter()
         run = self.model.physics_only if physics_only else self.model
         out = run(inp, steps=steps, keep_trace=keep_trace)

@@ -293,7 +293,7 @@ class SkinningTransfer:
                                iterations=self.limit_sweeps, momentum=self.limit_momentum, **contact)
         return limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=LOCAL_STRETCH_BOUND)
 
-    def apply(self, body, garment_verts: Tensor | None = None) -> Tensor:
+    def apply(self, body, garment_verts: Tensor | None = None, *, surface: BodySurface | None = None) -> Tensor:
         """X_init = LBS(X_temp + dX_shape, pose) on a batch of bodies (paper Eq. 5).
 
         Args:
@@ -301,6 +301,8 @@ class SkinningTransfer:
                 (B, Vb, 4, 4)) of the body model the weights were fitted on.
             garment_verts: garment in the canonical pose on the canonical body [m], shape (V, 3)
                 or (B, V, 3); default the fitted template.
+            surface: the posed bodies of ``body`` as a `BodySurface` in their dtype, if the caller
+                holds one (else it is built here for the strain limiting's contact).
 
         Returns:
             X_init: garment positions [m], shape (B, V, 3), in the dtype of ``body.rest_verts``;
@@ -329,7 +331,7 @@ class SkinningTransfer:
         x_rest = x_temp + blended[..., :3]
         affine = blended[..., 3:].reshape(batch, self.num_verts, 3, 4)
         x = torch.einsum("bvij,bvj->bvi", affine[..., :3], x_rest) + affine[..., 3]
-        return self.limit_stretch(x, x_temp, body=_posed_surface(body, dtype))
+        return self.limit_stretch(x, x_temp, body=_posed_surface(body, dtype) if surface is None else surface)
 
 
 def _posed_surface(body, dtype: torch.dtype) -> BodySurface | None:

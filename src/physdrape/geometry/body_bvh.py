@@ -123,7 +123,8 @@ class BodyBVH:
                 mesh.refit()
 
     def closest_faces(
-        self, points32: Tensor, body: Tensor, *, winding_accuracy: float, threads: int | None = None
+        self, points32: Tensor, body: Tensor, *, winding_accuracy: float, threads: int | None = None,
+        winding: bool | None = None,
     ) -> tuple[Tensor, Tensor | None]:
         """Closest face (and winding-number inside flag) per point.
 
@@ -133,6 +134,8 @@ class BodyBVH:
             winding_accuracy: Warp's fast-winding-number accuracy (see `BodySurface`).
             threads: CPU threads that share the search (the points are split into chunks launched
                 from a thread pool, bit-for-bit the same result). None = `torch.get_num_threads()`.
+            winding: also evaluate the winding number (needs `with_winding_number`); None = when
+                the BVHs were built with it.
 
         Returns:
             face: shape (M,) int64; inside: shape (M,) bool, or None without the winding number.
@@ -140,7 +143,9 @@ class BodyBVH:
         wp, closest_kernel, closest_winding_kernel = _query_kernels()
         n = points32.shape[0]
         face = torch.empty(n, dtype=torch.int32, device=points32.device)
-        with_wn = self.with_winding_number
+        with_wn = self.with_winding_number if winding is None else winding
+        if with_wn and not self.with_winding_number:
+            raise ValueError("closest_faces(winding=True) needs BVHs built with_winding_number=True")
         inside = torch.empty(n, dtype=torch.int32, device=points32.device) if with_wn else None
         max_dist = 1.0e30
 

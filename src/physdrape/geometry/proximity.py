@@ -15,6 +15,12 @@ Split of the work:
    found triangle is recomputed in torch (Ericson's region test) in the dtype of the input, so
    ``closest``, ``signed_distance`` and ``normal`` are differentiable w.r.t. the points and the
    body vertices.
+3. **Inside test only where the sign is in doubt** (``SignMethod.WINDING_NUMBER``): the
+   pseudo-normal sign of the closest feature is exact wherever the body surface around it is a
+   clean, closed, consistently oriented sheet, and the winding number (about as costly as the
+   closest-point search itself) is evaluated only for points whose closest face lies near where
+   it is not: posed limbs that interpenetrate, or a hole in the mesh (see
+   `BodySurface.doubtful_faces`).
 
 Normal and sign (chosen so that the handler ``x* = x + delta * relu(eps - d) * n`` with
 ``delta >= 1`` puts every point at ``d >= eps`` wherever the body's local feature size exceeds
@@ -42,6 +48,7 @@ World frame and units follow DESIGN Sec. 1 (metres); no dtype is hard-coded.
 from __future__ import annotations
 
 import enum
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,9 +58,10 @@ from torch import Tensor
 from physdrape.geometry.body_bvh import BodyBVH
 from physdrape.geometry.closest_point import closest_point_on_triangle
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
-from physdrape.geometry.topology import edge_neighbour_faces
+from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
 
 __all__ = [
+    "DOUBT_RADIUS_EDGES",
     "SignMethod",
     "SurfaceQuery",
     "BodySurface",
@@ -66,6 +74,8 @@ class SignMethod(str, enum.Enum):
 
     WINDING_NUMBER: generalized winding number > 0.5 (Warp's fast winding number). Robust to
         holes, flipped patches and self-intersections (overlapping limbs count as inside). Default.
+        Evaluated where the pseudo-normal sign is in doubt (`BodySurface.doubtful_faces`); elsewhere
+        the two agree and the cheaper pseudo-normal sign is taken.
         Where limbs interpenetrate, a point inside the torso may get its closest point on the
         arm's surface: d < 0 is then right, but n points through the arm (no single outward
         direction exists there).
@@ -77,6 +87,22 @@ class SignMethod(str, enum.Enum):
 
     WINDING_NUMBER = "winding_number"
     PSEUDO_NORMAL = "pseudo_normal"
+
+
+#: How far from a buried vertex (or a hole) the pseudo-normal sign is in doubt, in multiples of
+#: the body's longest edge: a face that another part of the body crosses has a vertex of that part
+#: inside the body within about two edge lengths of its own vertices.
+DOUBT_RADIUS_EDGES = 3.0
+#: A body vertex is buried when the point this far [m] out along its normal is inside the body.
+_PROBE_OFFSET = 1e-4
+
+
+@functools.lru_cache(maxsize=8)
+def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per body topology (computed once per mesh): each face's neighbours across its edges (F, 3)
+    and the vertices on a hole's border."""
+    tri = np.frombuffer(faces, dtype=np.int64).reshape(num_faces, 3)
+    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri))
 
 
 @dataclass(frozen=True)
@@ -187,7 +213,9 @@ class BodySurface:
         self.winding_accuracy = float(winding_accuracy)
         verts = _check_verts(verts)
         self.faces = _check_faces(faces, verts.shape[1], verts.device)
-        self._edge_nbr = torch.from_numpy(edge_neighbour_faces(self.faces.cpu().numpy())).to(verts.device)
+        edge_nbr, border = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
+        self._edge_nbr = torch.from_numpy(edge_nbr).to(verts.device)
+        self._border = torch.from_numpy(border).to(verts.device)
         self._build(verts)
 
     # -- structure ---------------------------------------------------------------------------
@@ -222,6 +250,7 @@ class BodySurface:
         """(Re)build one Warp BVH per body."""
         self.verts = verts
         self._vertex_normals = None
+        self._doubtful = None
         self._bvh = BodyBVH(verts, self.faces, with_winding_number=self.sign_method is SignMethod.WINDING_NUMBER)
 
     def update(self, verts: Tensor) -> None:
@@ -239,6 +268,7 @@ class BodySurface:
             return
         self.verts = verts
         self._vertex_normals = None
+        self._doubtful = None
         self._bvh.refit(verts)
 
     @classmethod
@@ -248,10 +278,43 @@ class BodySurface:
 
     # -- queries -----------------------------------------------------------------------------
 
-    def _search(self, points32: Tensor, body: Tensor) -> tuple[Tensor, Tensor | None]:
-        """Warp BVH search: closest face (and winding-number inside flag) per point."""
+    def _search(self, points32: Tensor, body: Tensor, *, winding: bool = False) -> tuple[Tensor, Tensor | None]:
+        """Warp BVH search: closest face (and, with `winding`, the winding-number inside flag) per point."""
         return self._bvh.closest_faces(points32, body, winding_accuracy=self.winding_accuracy,
-                                       threads=self.search_threads)
+                                       threads=self.search_threads, winding=winding)
+
+    @torch.no_grad()
+    def doubtful_faces(self) -> Tensor:
+        """Faces near which the pseudo-normal sign may be wrong, shape (B, Fb) bool; computed once
+        per body position (until `update`).
+
+        A body vertex is *buried* when a point just outside it (`_PROBE_OFFSET` along its normal)
+        has winding number > 0.5: another part of the body covers it (posed limbs that
+        interpenetrate). Vertices on the border of a hole count as buried too. A face is doubtful
+        when one of its vertices lies within `DOUBT_RADIUS_EDGES` of the body's longest edge of a
+        buried vertex. Away from doubtful faces the surface is one closed, consistently oriented
+        sheet, on which the pseudo-normal of the closest feature gives the exact sign.
+        """
+        if self._doubtful is not None:
+            return self._doubtful
+        if self.sign_method is not SignMethod.WINDING_NUMBER:
+            raise ValueError("doubtful_faces needs sign_method=WINDING_NUMBER")
+        verts = self.verts.detach()
+        num_bodies, num_verts = verts.shape[:2]
+        probe = (verts + _PROBE_OFFSET * self._vertex_pseudo_normals()).reshape(-1, 3)
+        owner = torch.arange(num_bodies, dtype=torch.int32, device=verts.device).repeat_interleave(num_verts)
+        _, inside = self._search(probe.to(torch.float32).contiguous(), owner, winding=True)
+        buried = inside.reshape(num_bodies, num_verts)
+        buried[:, self._border] = True
+        edges = verts[:, self.faces] - verts[:, self.faces.roll(1, dims=1)]  # (B, Fb, 3, 3)
+        radius = DOUBT_RADIUS_EDGES * edges.norm(dim=-1).amax(dim=(1, 2))  # (B,)
+        near = torch.zeros(num_bodies, num_verts, dtype=torch.bool, device=verts.device)
+        for b in range(num_bodies):
+            centres = verts[b, buried[b]]
+            for start in range(0, centres.shape[0], 1024):  # bounded memory: (Vb, 1024) distances
+                near[b] |= torch.cdist(verts[b], centres[start:start + 1024]).amin(dim=1) <= radius[b]
+        self._doubtful = near[:, self.faces].any(dim=-1)
+        return self._doubtful
 
     def _vertex_pseudo_normals(self) -> Tensor:
         """Angle-weighted vertex normals of all bodies, shape (B, Vb, 3); cached until update()."""
@@ -341,7 +404,9 @@ class BodySurface:
                              f"index {first}); the garment state diverged upstream")
 
         with torch.no_grad():
-            face, inside = self._search(x.detach().to(torch.float32).contiguous(), body.to(torch.int32).contiguous())
+            x32 = x.detach().to(torch.float32).contiguous()
+            body32 = body.to(torch.int32).contiguous()
+            face, _ = self._search(x32, body32)
 
         tri = self.faces[face]  # (M, 3)
         corners = self.verts[body[:, None], tri]  # (M, 3, 3)
@@ -349,21 +414,18 @@ class BodySurface:
         r = x - p
         dist = r.norm(dim=-1)
         near = dist <= self.near_tol
-        need_pseudo = near if self.sign_method is SignMethod.WINDING_NUMBER else torch.ones_like(near)
-        n_pseudo = None
-        if need_pseudo.all():
-            n_pseudo = self._pseudo_normals(body, face, bary.detach())
-        elif need_pseudo.any():
-            idx = torch.nonzero(need_pseudo)[:, 0]
-            n_pseudo = torch.zeros_like(x).index_put_((idx,), self._pseudo_normals(body[idx], face[idx],
-                                                                                   bary[idx].detach()))
-        if inside is None:  # pseudo-normal sign
-            inside = (r.detach() * n_pseudo).sum(-1) < 0
+        n_pseudo = self._pseudo_normals(body, face, bary.detach())
+        inside = (r.detach() * n_pseudo).sum(-1) < 0  # the pseudo-normal sign
+        if self.sign_method is SignMethod.WINDING_NUMBER:
+            with torch.no_grad():
+                doubt = torch.nonzero(self.doubtful_faces()[body, face])[:, 0]
+                if doubt.numel():
+                    _, wn_inside = self._search(x32[doubt], body32[doubt], winding=True)
+                    inside[doubt] = wn_inside
         sign = 1.0 - 2.0 * inside.to(x.dtype)
         safe = torch.where(near, torch.ones_like(dist), dist)
         n = sign[:, None] * r / safe[:, None]
-        if n_pseudo is not None:
-            n = torch.where(near[:, None], n_pseudo, n)
+        n = torch.where(near[:, None], n_pseudo, n)
         d = (r * n).sum(-1)
         return SurfaceQuery(
             closest=p.reshape(*lead, 3),
