@@ -211,7 +211,11 @@ def test_interpenetrating_parts_inside_follows_winding_number():
     faces = torch.cat([a_faces, b_faces + len(a_verts)])
     x = sample_points(verts, faces, 1500, 500, seed=4, offset=0.06)
     surface = BodySurface(verts, faces)
-    q = surface.query(x)
+    few = surface.query(x[:100])  # fewer points than body vertices: the winding number of each
+    assert surface._doubtful is None
+    q = surface.query(x)  # then the doubtful faces, found once
+    assert surface._doubtful is not None
+    assert torch.equal(few.inside, q.inside[:100])
     wn = brute_force_winding_number(x, verts, faces)
     dist = brute_force_closest(x, verts, faces)[0]
     clear = (dist > 1e-5) & ((wn - 0.5).abs() > 0.02)

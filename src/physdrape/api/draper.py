@@ -141,6 +141,7 @@ class Draper:
         self._templates: dict[tuple[str, str], Template] = {}
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
         self._detached: dict[tuple[str, str], str | None] = {}
+        self._named_poses: dict[str, list[BodyPose]] = {}
         #: the last few posed body batches (their surfaces built on first use), by rig, shapes and poses
         self._posed: OrderedDict[tuple, PosedBodies] = OrderedDict()
 
@@ -223,6 +224,10 @@ class Draper:
             return sequences.tag_frames(spec, specs.motion_poses(spec, self.body, smpl=self.smpl is not None))
         if self.smpl is not None:
             return specs.smpl_poses(spec, self.body("smpl"))
+        if isinstance(spec, str):  # a preset or a seeded draw (the sampler poses and checks bodies): once
+            if spec not in self._named_poses:
+                self._named_poses[spec] = specs.anny_poses(spec, self.body)
+            return list(self._named_poses[spec])
         return specs.anny_poses(spec, self.body)
 
     material = staticmethod(specs.material)

@@ -251,6 +251,7 @@ class BodySurface:
         self.verts = verts
         self._vertex_normals = None
         self._doubtful = None
+        self._points_asked = 0
         self._bvh = BodyBVH(verts, self.faces, with_winding_number=self.sign_method is SignMethod.WINDING_NUMBER)
 
     def update(self, verts: Tensor) -> None:
@@ -418,7 +419,14 @@ class BodySurface:
         inside = (r.detach() * n_pseudo).sum(-1) < 0  # the pseudo-normal sign
         if self.sign_method is SignMethod.WINDING_NUMBER:
             with torch.no_grad():
-                doubt = torch.nonzero(self.doubtful_faces()[body, face])[:, 0]
+                # Finding the doubtful faces costs a winding number per body vertex: until this
+                # surface has been asked about that many points, the winding number of every point
+                # is cheaper.
+                self._points_asked += x.shape[0]
+                if self._doubtful is None and self._points_asked < self.verts.shape[0] * self.verts.shape[1]:
+                    doubt = torch.arange(x.shape[0], device=x.device)
+                else:
+                    doubt = torch.nonzero(self.doubtful_faces()[body, face])[:, 0]
                 if doubt.numel():
                     _, wn_inside = self._search(x32[doubt], body32[doubt], winding=True)
                     inside[doubt] = wn_inside
