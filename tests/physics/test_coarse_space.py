@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 import torch
+from majorant_reference import face_blocks
 
 from physdrape.geometry import topology
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet, open_cylinder
 from physdrape.physics import Cloth
 from physdrape.physics.coarse_space import REGULARIZATION, CoarseSpace
-from physdrape.physics.hessians import face_blocks
 
 
 def _batch():

@@ -1,25 +1,33 @@
-"""The preconditioners' blocks: per-face 9×9 and per-vertex 3×3 blocks of a PSD majorant of the Hessian (float64)."""
+"""The preconditioners' blocks (`physdrape.physics.majorant`, Warp kernels): per-face 9×9 and
+per-vertex 3×3 blocks of a PSD majorant of the Hessian (float64), against the exact Hessians and
+against their plain-torch twins."""
 
+import pytest
 import torch
+from majorant_reference import _abs_part_2x2
+from majorant_reference import face_blocks as reference_face_blocks
+from majorant_reference import vertex_blocks as reference_vertex_blocks
 from physics_cases import random_rotation
 
 from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.physics import Cloth
-from physdrape.physics.hessians import (
-    _abs_part_2x2,
-    bend_gauss_newton_hessian,
-    face_blocks,
-    project_psd,
-    strain_hessian,
-    vertex_blocks,
-)
+from physdrape.physics.hessians import bend_gauss_newton_hessian, project_psd, strain_hessian
+from physdrape.physics.majorant import pair_blocks, vertex_blocks
 from physdrape.physics.strain import deformation_gradient, green_strain, stress
 
 
 def _cloth():
     garment = Garment.from_mesh(*grid_sheet(5, 6, width=0.3, height=0.25))
     return garment, Cloth.build(garment)
+
+
+def face_blocks(x: torch.Tensor, cloth: Cloth) -> torch.Tensor:
+    """Every face's 9×9 block from `pair_blocks` with one pair per face corner pair, (F, 9, 9)."""
+    num_faces = cloth.faces.shape[0]
+    pairs = torch.arange(9 * num_faces, dtype=torch.int32).reshape(num_faces, 9)
+    blocks = pair_blocks(x, cloth, pairs, 9 * num_faces).reshape(num_faces, 3, 3, 3, 3)  # (F, a, b, c, d)
+    return blocks.permute(0, 1, 3, 2, 4).reshape(num_faces, 9, 9)
 
 
 def _diagonal_blocks(h: torch.Tensor, elems: torch.Tensor, num_verts: int) -> torch.Tensor:
@@ -104,3 +112,31 @@ def test_face_blocks_are_psd_majorants_in_compression_and_share_the_vertex_diago
     diagonal = _diagonal_blocks(fast, cloth.faces, cloth.num_verts)
     diagonal += _diagonal_blocks(bend_gauss_newton_hessian(x, cloth), cloth.hinges, cloth.num_verts)
     torch.testing.assert_close(vertex_blocks(x, cloth), diagonal, rtol=1e-10, atol=1e-10 * scale)
+
+
+@pytest.mark.parametrize("state", ["stretched", "compressed"])
+def test_kernels_equal_their_torch_twins(state):
+    garment, cloth = _cloth()
+    gen = torch.Generator().manual_seed(3)
+    x = _stretched(garment) if state == "stretched" else garment.rest * torch.tensor([0.8, 1.1, 1.0],
+                                                                                    dtype=torch.float64)
+    x = x + 0.005 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
+    fast, slow = face_blocks(x, cloth), reference_face_blocks(x, cloth)
+    torch.testing.assert_close(fast, slow, rtol=1e-12, atol=1e-12 * slow.abs().max().item())
+    fast, slow = vertex_blocks(x, cloth), reference_vertex_blocks(x, cloth)
+    torch.testing.assert_close(fast, slow, rtol=1e-12, atol=1e-12 * slow.abs().max().item())
+
+
+def test_float32_positions_give_float32_blocks_close_to_float64():
+    garment, cloth = _cloth()
+    x = _stretched(garment)
+    cloth32 = Cloth.build(Garment.from_mesh(*grid_sheet(5, 6, width=0.3, height=0.25), dtype=torch.float32))
+    blocks = vertex_blocks(x.float(), cloth32)
+    assert blocks.dtype == torch.float32
+    torch.testing.assert_close(blocks.double(), vertex_blocks(x, cloth), rtol=1e-5, atol=1e-5 * blocks.abs().max().item())
+
+
+def test_pair_blocks_refuse_a_bad_pair_table():
+    garment, cloth = _cloth()
+    with pytest.raises(ValueError, match="pair_of_corner must be int32"):
+        pair_blocks(garment.rest, cloth, torch.zeros(cloth.faces.shape[0], 9, dtype=torch.int64), 1)

@@ -15,7 +15,6 @@ write its inputs and read its outputs.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 from concurrent.futures import ThreadPoolExecutor
 
@@ -23,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from physdrape.warp_runtime import warp
+from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["BodyBVH"]
 
@@ -79,13 +78,6 @@ def _query_kernels():
     return wp, closest_kernel, closest_winding_kernel
 
 
-def _on_torch_stream(wp, device: torch.device):
-    """A context running Warp work on torch's current stream of CUDA `device`; nothing on the CPU."""
-    if device.type == "cuda":
-        return wp.ScopedStream(wp.stream_from_torch(device))
-    return contextlib.nullcontext()
-
-
 class BodyBVH:
     """One Warp BVH per body of a batch sharing one triangle topology.
 
@@ -104,7 +96,7 @@ class BodyBVH:
         # float32 copies the BVHs point at; must outlive the meshes.
         self._points32 = verts.detach().to(torch.float32).contiguous().clone()
         self._indices32 = faces.to(device=verts.device, dtype=torch.int32).reshape(-1).contiguous()
-        with _on_torch_stream(wp, self._device):
+        with torch_stream(self._device):
             wp_indices = wp.from_torch(self._indices32, dtype=wp.int32)
             self._meshes = [
                 wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
@@ -118,7 +110,7 @@ class BodyBVH:
         """Move the bodies to new vertex positions of the same shape (B, Vb, 3): refit, no rebuild."""
         self._points32.copy_(verts.detach())
         wp, _, _ = _query_kernels()
-        with _on_torch_stream(wp, self._device):
+        with torch_stream(self._device):
             for mesh in self._meshes:
                 mesh.refit()
 
@@ -169,7 +161,7 @@ class BodyBVH:
             for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
                 job.result()
         elif n:
-            with _on_torch_stream(wp, self._device):
+            with torch_stream(self._device):
                 launch(0, n)
         if n and int(face.min()) < 0:
             raise RuntimeError("the body BVH found no triangle for some points: every face of the body is "

@@ -20,7 +20,7 @@ from physdrape.physics.contact import (
     query_samples,
 )
 from physdrape.physics.forces import internal_energy, internal_forces
-from physdrape.physics.hessians import vertex_blocks
+from physdrape.physics.majorant import vertex_blocks
 
 
 class SolverKind(str, enum.Enum):
@@ -47,7 +47,7 @@ class StretchingSolver(nn.Module):
       the direction does not descend). η is dimensionless (1 = a full preconditioned step). The
       preconditioner is two-level: C = K⁻¹ + P (Pᵀ K P)⁻¹ Pᵀ, K⁻¹ block Jacobi (K_i the 3×3
       diagonal block of a PSD majorant of the Hessian of E_strain + E_bend + E_c,
-      `physics.hessians.vertex_blocks`: each vertex gets the compliance of its own stiffness, so
+      `physics.majorant.vertex_blocks`: each vertex gets the compliance of its own stiffness, so
       one η suits small and large faces, soft and stiff fabrics), the second term the Galerkin
       correction on a garment's smooth patches (`physics.coarse_space.CoarseSpace`), which moves
       what block Jacobi cannot: the garment sliding, riding up or stretching as a whole. Coarse

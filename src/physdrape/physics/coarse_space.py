@@ -9,7 +9,7 @@ adds the motions of a few hundred smooth patches per garment, solved together:
 
     z_c = P (Pᵀ K P)⁻¹ Pᵀ r,
 
-with K the PSD strain-Hessian majorant of every face (`physics.hessians.face_blocks`) plus the
+with K the PSD strain-Hessian majorant of every face (`physics.majorant.pair_blocks`) plus the
 solver's contact blocks, and P a smoothed-aggregation prolongation (`topology.aggregates`,
 `topology.smoothed_prolongation`): patch indicators averaged over mesh neighbours, so a patch
 moves as a smooth bump and no kink is left at its border (raw indicators leave kinks that the
@@ -22,12 +22,13 @@ dtype) is gathered into 3×3 blocks of the vertex pairs that share a face; Pᵀ 
 float64 with scipy (block-sparse products) and factorised per garment (dense Cholesky). The
 correction is differentiable in r (P and the factor are constants).
 
-Devices: the face blocks are computed on the cloth's device, and the correction `solve` (every
-solver step) runs there too, with P and the factors held there. The Galerkin product and the
-factorisation (`factor`, every few steps) run on the host: Pᵀ K P is a product of block-sparse
-matrices whose pattern is fixed by the topology, which scipy forms in float64 at once, and each
-garment's coarse system is small (at most 3·MAX_PATCHES unknowns). Each `factor` therefore copies
-the face and contact blocks to the host and the factors back; on the CPU both copies are free.
+Devices: the blocks of K are summed per vertex pair on the cloth's device (a Warp kernel), and
+the correction `solve` (every solver step) runs there too, with P and the factors held there. The
+Galerkin product and the factorisation (`factor`, every few steps) run on the host: Pᵀ K P is a
+product of block-sparse matrices whose pattern is fixed by the topology, which scipy forms in
+float64 at once, and each garment's coarse system is small (at most 3·MAX_PATCHES unknowns). Each
+`factor` therefore copies the pair and contact blocks to the host and the factors back; on the
+CPU both copies are free.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from torch import Tensor
 
 from physdrape.geometry import topology
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.hessians import face_blocks
+from physdrape.physics.majorant import pair_blocks
 
 __all__ = ["CoarseSpace"]
 
@@ -135,7 +136,7 @@ class CoarseSpace:
         pairs, where = np.unique(key, return_inverse=True)
         self._pair_cols = (pairs % num_verts).astype(np.int32)
         self._pair_indptr = np.concatenate([[0], np.cumsum(np.bincount(pairs // num_verts, minlength=num_verts))])
-        self._pair_of_corner = torch.from_numpy(where.astype(np.int64))
+        self._pair_of_corner = torch.from_numpy(where.astype(np.int32).reshape(-1, 9)).to(cloth.device)
         self._pair_of_vertex = torch.from_numpy(np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1)))
         coo = prolong.tocoo()
         device = cloth.device
@@ -148,10 +149,8 @@ class CoarseSpace:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): extra
         per-vertex stiffness added to K (the solver's contact blocks), or None."""
         with torch.no_grad():
-            corner = face_blocks(x.detach(), self.cloth).double().reshape(-1, 3, 3, 3, 3).permute(0, 1, 3, 2, 4)
-            # assembled on the host (module docstring)
-            blocks = torch.zeros(len(self._pair_cols), 3, 3, dtype=torch.float64, device="cpu")
-            blocks.index_add_(0, self._pair_of_corner, corner.reshape(-1, 3, 3).cpu())
+            blocks = pair_blocks(x, self.cloth, self._pair_of_corner, len(self._pair_cols))
+            blocks = blocks.cpu()  # the Galerkin product is formed on the host (module docstring)
             if vertex_blocks is not None:
                 blocks.index_add_(0, self._pair_of_vertex, vertex_blocks.detach().double().cpu())
         n = 3 * self.cloth.num_verts

@@ -17,18 +17,7 @@ corners in the order of ``cloth.faces`` (3 corners, 9 dofs) or ``cloth.hinges`` 
   (``torch.func.vmap(torch.func.hessian(...))``), or the Gauss-Newton part k·∇θ∇θᵀ alone
   (PSD by construction, cheap, no curvature of θ).
 - The stretching solver's preconditioners use a PSD majorant of the strain Hessian in closed
-  form (no eigendecomposition). With ``u_a = F w_a``, the block of corners a, b of a face is
-  ``V [(w_aᵀ |S| w_b) I + μ u_b u_aᵀ + λ u_a u_bᵀ + μ (w_a·w_b) F Fᵀ]``, where |S| is the 2×2
-  stress S with its eigenvalues replaced by their absolute values. Only the ``δ_cd S_lj`` term of
-  A can be indefinite (the μ and λ terms sum to ``2μ‖sym(FᵀV)‖² + λ tr(FᵀV)²`` ≥ 0 for any
-  direction V), so replacing S by |S| gives a PSD tensor that is ≥ A; where S is PSD (stretch)
-  it is exactly A. Using |S| rather than its PSD part S⁺ keeps a compressed face stiff across
-  its plane (absolute-eigenvalue filtering, Chen et al. 2024): with S⁺ a compressed, flat patch
-  is held out of plane by its bending stiffness alone, and preconditioned steps there throw it
-  into mesh-scale wrinkles.
-  `face_blocks` gives every face's 9×9 block (the coarse space of
-  `physdrape.physics.coarse_space`), `vertex_blocks` only each vertex's 3×3 diagonal block with
-  the Gauss-Newton bending added (block Jacobi).
+  form instead (`physdrape.physics.majorant`).
 """
 
 from __future__ import annotations
@@ -42,11 +31,9 @@ from physdrape.physics.strain import deformation_gradient, green_strain, stress
 __all__ = [
     "bend_gauss_newton_hessian",
     "bend_hessian",
-    "face_blocks",
     "project_psd",
     "strain_hessian",
     "strain_stress_tensor",
-    "vertex_blocks",
 ]
 
 
@@ -147,59 +134,3 @@ def bend_gauss_newton_hessian(x: Tensor, cloth: Cloth) -> Tensor:
     """Gauss-Newton bending Hessian k·∇θ∇θᵀ per hinge, x (V, 3) → (H, 12, 12) [J/m²]; PSD."""
     g = _angle_gradients(x, cloth).reshape(-1, 12)
     return cloth.bend_stiffness[:, None, None] * g[:, :, None] * g[:, None, :]
-
-
-def _abs_part_2x2(S: Tensor) -> Tensor:
-    """|S| of symmetric 2×2 matrices (eigenvalues replaced by their absolute values), (..., 2, 2),
-    closed form."""
-    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
-    mean, half = 0.5 * (a + d), (0.25 * (a - d) ** 2 + b * b).sqrt()
-    lo, hi = mean - half, mean + half
-    # S = hi·P + lo·(I − P) with P the projector on the top eigenvector: |S| = |hi| P + |lo| (I − P).
-    eye = torch.eye(2, dtype=S.dtype, device=S.device)
-    gap = (hi - lo)[..., None, None]
-    proj = torch.where(gap > 0, (S - lo[..., None, None] * eye) / gap.clamp_min(torch.finfo(S.dtype).tiny), 0.5 * eye)
-    return hi.abs()[..., None, None] * proj + lo.abs()[..., None, None] * (eye - proj)
-
-
-def _majorant_terms(x: Tensor, cloth: Cloth) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Per face: corner weights w (F, 3, 2), u_a = F w_a (F, 3, 3), |S| (F, 2, 2), F Fᵀ (F, 3, 3)."""
-    F = deformation_gradient(x, cloth)  # (F, 3, 2)
-    w = _corner_weights(cloth)  # (F, 3, 2)
-    u = torch.einsum("fcj,faj->fac", F, w)
-    return w, u, _abs_part_2x2(stress(green_strain(F), cloth)), F @ F.transpose(-1, -2)
-
-
-def face_blocks(x: Tensor, cloth: Cloth) -> Tensor:
-    """Each face's 9×9 block of the PSD strain-Hessian majorant (module docstring), x (V, 3) →
-    (F, 9, 9) [N/m], dof order 3·corner + axis as `strain_hessian`, which it equals on faces
-    whose stress is PSD."""
-    w, u, s_abs, FFt = _majorant_terms(x, cloth)
-    eye3 = torch.eye(3, dtype=x.dtype, device=x.device)
-    mu, lam = cloth.mu[:, None, None, None, None], cloth.lam[:, None, None, None, None]
-    wsw = torch.einsum("faj,fjl,fbl->fab", w, s_abs, w)
-    ww = torch.einsum("faj,fbj->fab", w, w)
-    block = (wsw[..., None, None] * eye3 + mu * u[:, None, :, :, None] * u[:, :, None, None, :]
-             + lam * u[:, :, None, :, None] * u[:, None, :, None, :] + mu * ww[..., None, None] * FFt[:, None, None])
-    block = cloth.volume[:, None, None, None, None] * block  # (F, a, b, c, d)
-    return block.permute(0, 1, 3, 2, 4).reshape(-1, 9, 9)
-
-
-def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
-    """3×3 diagonal blocks per vertex of a PSD majorant of ∇²(E_strain + E_bend) (module docstring).
-
-    x (V, 3) [m] → (V, 3, 3) [N/m], symmetric PSD. The strain part equals the diagonal blocks of
-    `strain_hessian` wherever every face's stress S is PSD; the bending part is Gauss-Newton.
-    """
-    w, u, s_abs, FFt = _majorant_terms(x, cloth)
-    eye3 = torch.eye(3, dtype=x.dtype, device=x.device)
-    sws = torch.einsum("faj,fjl,fal->fa", w, s_abs, w)
-    ww = (w * w).sum(-1)
-    block = (sws[..., None, None] * eye3 + (cloth.mu + cloth.lam)[:, None, None, None] * u[..., :, None] * u[..., None, :]
-             + (cloth.mu[:, None] * ww)[..., None, None] * FFt[:, None])
-    block = cloth.volume[:, None, None, None] * block
-    out = torch.zeros(cloth.num_verts, 3, 3, dtype=x.dtype, device=x.device)
-    out.index_add_(0, cloth.faces.reshape(-1), block.reshape(-1, 3, 3))
-    g = _angle_gradients(x, cloth)  # (H, 4, 3)
-    bend = cloth.bend_stiffness[:, None, None, None] * g[..., :, None] * g[..., None, :]
-    return out.index_add_(0, cloth.hinges.reshape(-1), bend.reshape(-1, 3, 3))

@@ -1,0 +1,200 @@
+"""The stretching solver's stiffness: a PSD majorant of the garment's Hessian, as NVIDIA Warp kernels.
+
+The two-level preconditioner of `physdrape.model.stretching_solver` needs, at every step, each
+vertex's 3×3 stiffness block (block Jacobi) and, every few steps, the 3×3 blocks of every pair of
+vertices that share a face (the Galerkin product of `physdrape.physics.coarse_space`). Both come
+from one closed-form PSD majorant of ∇²(E_strain + E_bend), without eigendecompositions:
+
+- Strain (StVK). With F = Ds·Dm⁻¹ = Σ_a x_a w_aᵀ (w_a the rows of Dm⁻¹, corner 0 taking minus
+  their sum) and u_a = F w_a, the block of corners a, b of a face is
+  ``V [(w_aᵀ |S| w_b) I + μ u_b u_aᵀ + λ u_a u_bᵀ + μ (w_a·w_b) F Fᵀ]``, where S = 2μG + λ tr(G) I
+  is the second Piola–Kirchhoff stress and |S| the 2×2 stress with its eigenvalues replaced by
+  their absolute values. Only the ``δ_cd S_lj`` term of the elasticity tensor can be indefinite
+  (the μ and λ terms sum to ``2μ‖sym(FᵀV)‖² + λ tr(FᵀV)²`` ≥ 0 for any direction V), so |S| in
+  place of S gives a PSD tensor that is ≥ the exact one, and equal to it where S is PSD
+  (stretch). |S| rather than its PSD part keeps a compressed face stiff across its plane
+  (absolute-eigenvalue filtering, Chen et al. 2024): with S⁺ a compressed, flat patch is held out
+  of plane by its bending stiffness alone, and preconditioned steps there throw it into
+  mesh-scale wrinkles.
+- Bending: the Gauss–Newton part k·∇θ∇θᵀ of each hinge (PSD by construction), added to the
+  vertex blocks only (smooth coarse patches barely bend).
+
+The kernels compute in float64 whatever the garment's dtype (a few thousand elements; the
+coarse product is formed in float64 anyway) and run where the tensors live, on the CPU or on
+CUDA, one thread per face or hinge, summing into the vertices and pairs atomically. Nothing here
+is differentiated: the solver's preconditioner is a constant of each step.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+from torch import Tensor
+
+from physdrape.physics.cloth import Cloth
+from physdrape.warp_runtime import torch_stream, warp
+
+__all__ = ["pair_blocks", "vertex_blocks"]
+
+
+@functools.cache
+def _kernels():
+    """Define the kernels (first call only; Warp caches the compiled code on disk)."""
+    wp = warp()
+    f64 = wp.float64
+
+    @wp.func
+    def abs_part(s: wp.mat22d) -> wp.mat22d:
+        """|S| of a symmetric 2×2 matrix: S = hi·P + lo·(I − P) → |hi| P + |lo| (I − P)."""
+        mean = f64(0.5) * (s[0, 0] + s[1, 1])
+        half = wp.sqrt(f64(0.25) * (s[0, 0] - s[1, 1]) * (s[0, 0] - s[1, 1]) + s[0, 1] * s[0, 1])
+        lo = mean - half
+        hi = mean + half
+        eye = wp.identity(n=2, dtype=wp.float64)
+        proj = f64(0.5) * eye
+        if hi - lo > f64(0.0):
+            proj = (s - lo * eye) / (hi - lo)
+        return wp.abs(hi) * proj + wp.abs(lo) * (eye - proj)
+
+    @wp.func
+    def corner_block(wa: wp.vec2d, ua: wp.vec3d, wb: wp.vec2d, ub: wp.vec3d, s_abs: wp.mat22d, fft: wp.mat33d,
+                     mu: wp.float64, lam: wp.float64, volume: wp.float64) -> wp.mat33d:
+        """The strain majorant's block of corners a, b (module docstring)."""
+        return volume * (wp.dot(wa, s_abs * wb) * wp.identity(n=3, dtype=wp.float64) + mu * wp.outer(ub, ua)
+                         + lam * wp.outer(ua, ub) + mu * wp.dot(wa, wb) * fft)
+
+    @wp.func
+    def face_state(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                   rest_inv: wp.array(dtype=wp.mat22d), mu: wp.float64, lam: wp.float64, f: int):
+        """Corner weights w_a, u_a = F w_a, |S| and F Fᵀ of face f."""
+        x0 = x[faces[f, 0]]
+        e1 = x[faces[f, 1]] - x0
+        e2 = x[faces[f, 2]] - x0
+        r = rest_inv[f]
+        c0 = e1 * r[0, 0] + e2 * r[1, 0]  # the columns of F
+        c1 = e1 * r[0, 1] + e2 * r[1, 1]
+        g00 = f64(0.5) * (wp.dot(c0, c0) - f64(1.0))
+        g01 = f64(0.5) * wp.dot(c0, c1)
+        g11 = f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
+        trace = lam * (g00 + g11)
+        s = wp.mat22d(f64(2.0) * mu * g00 + trace, f64(2.0) * mu * g01, f64(2.0) * mu * g01,
+                      f64(2.0) * mu * g11 + trace)
+        w1 = wp.vec2d(r[0, 0], r[0, 1])
+        w2 = wp.vec2d(r[1, 0], r[1, 1])
+        w0 = -(w1 + w2)
+        u0 = c0 * w0[0] + c1 * w0[1]
+        u1 = c0 * w1[0] + c1 * w1[1]
+        u2 = c0 * w2[0] + c1 * w2[1]
+        return w0, w1, w2, u0, u1, u2, abs_part(s), wp.outer(c0, c0) + wp.outer(c1, c1)
+
+    @wp.kernel(enable_backward=False)
+    def strain_vertex_kernel(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                             rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
+                             mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.mat33d)):
+        f = wp.tid()
+        m, l, v = mu[f], lam[f], volume[f]
+        w0, w1, w2, u0, u1, u2, s_abs, fft = face_state(x, faces, rest_inv, m, l, f)
+        wp.atomic_add(out, faces[f, 0], corner_block(w0, u0, w0, u0, s_abs, fft, m, l, v))
+        wp.atomic_add(out, faces[f, 1], corner_block(w1, u1, w1, u1, s_abs, fft, m, l, v))
+        wp.atomic_add(out, faces[f, 2], corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
+
+    @wp.kernel(enable_backward=False)
+    def strain_pair_kernel(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                           rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
+                           mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), pair: wp.array2d(dtype=wp.int32),
+                           out: wp.array(dtype=wp.mat33d)):
+        f = wp.tid()
+        m, l, v = mu[f], lam[f], volume[f]
+        w0, w1, w2, u0, u1, u2, s_abs, fft = face_state(x, faces, rest_inv, m, l, f)
+        wp.atomic_add(out, pair[f, 0], corner_block(w0, u0, w0, u0, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 1], corner_block(w0, u0, w1, u1, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 2], corner_block(w0, u0, w2, u2, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 3], corner_block(w1, u1, w0, u0, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 4], corner_block(w1, u1, w1, u1, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 5], corner_block(w1, u1, w2, u2, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 6], corner_block(w2, u2, w0, u0, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 7], corner_block(w2, u2, w1, u1, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 8], corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
+
+    @wp.kernel(enable_backward=False)
+    def bend_vertex_kernel(x: wp.array(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                           stiffness: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.mat33d)):
+        h = wp.tid()
+        x0 = x[hinges[h, 0]]
+        edge = x[hinges[h, 1]] - x0
+        d2 = x[hinges[h, 2]] - x0
+        d3 = x[hinges[h, 3]] - x0
+        n_a = wp.cross(edge, d2)
+        n_b = wp.cross(d3, edge)
+        edge_sq = wp.dot(edge, edge)
+        edge_len = wp.sqrt(edge_sq)
+        # ∇θ: the opposite corners along their face normals with 1/height, the edge's ends balancing
+        g2 = -(edge_len / wp.dot(n_a, n_a)) * n_a
+        g3 = -(edge_len / wp.dot(n_b, n_b)) * n_b
+        alpha_a = wp.dot(d2, edge) / edge_sq
+        alpha_b = wp.dot(d3, edge) / edge_sq
+        g0 = -(f64(1.0) - alpha_a) * g2 - (f64(1.0) - alpha_b) * g3
+        g1 = -alpha_a * g2 - alpha_b * g3
+        k = stiffness[h]
+        wp.atomic_add(out, hinges[h, 0], k * wp.outer(g0, g0))
+        wp.atomic_add(out, hinges[h, 1], k * wp.outer(g1, g1))
+        wp.atomic_add(out, hinges[h, 2], k * wp.outer(g2, g2))
+        wp.atomic_add(out, hinges[h, 3], k * wp.outer(g3, g3))
+
+    return wp, strain_vertex_kernel, strain_pair_kernel, bend_vertex_kernel
+
+
+def _strain_inputs(wp, x: Tensor, cloth: Cloth) -> list:
+    """The strain kernels' leading arguments: positions, faces, Dm⁻¹, V, μ, λ (float64 / int32)."""
+    f64 = torch.float64
+    return [wp.from_torch(x.detach().to(f64).contiguous(), dtype=wp.vec3d),
+            wp.from_torch(cloth.faces.to(torch.int32).contiguous(), dtype=wp.int32),
+            wp.from_torch(cloth.rest_inv.to(f64).contiguous(), dtype=wp.mat22d),
+            wp.from_torch(cloth.volume.to(f64).contiguous(), dtype=wp.float64),
+            wp.from_torch(cloth.mu.to(f64).contiguous(), dtype=wp.float64),
+            wp.from_torch(cloth.lam.to(f64).contiguous(), dtype=wp.float64)]
+
+
+@torch.no_grad()
+def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
+    """3×3 diagonal blocks per vertex of the PSD majorant of ∇²(E_strain + E_bend) (module docstring).
+
+    x (V, 3) [m] → (V, 3, 3) [N/m] in x's dtype, symmetric PSD. The strain part equals the
+    diagonal blocks of `physics.hessians.strain_hessian` wherever every face's stress S is PSD;
+    the bending part is Gauss–Newton.
+    """
+    wp, strain_vertex, _, bend_vertex = _kernels()
+    out = torch.zeros(cloth.num_verts, 3, 3, dtype=torch.float64, device=x.device)
+    device = wp.device_from_torch(x.device)
+    with torch_stream(x.device):
+        strain = _strain_inputs(wp, x, cloth)
+        target = wp.from_torch(out, dtype=wp.mat33d)
+        if cloth.faces.shape[0]:
+            wp.launch(strain_vertex, dim=cloth.faces.shape[0], inputs=strain, outputs=[target], device=device)
+        if cloth.hinges.shape[0]:
+            wp.launch(bend_vertex, dim=cloth.hinges.shape[0], device=device, outputs=[target],
+                      inputs=[strain[0], wp.from_torch(cloth.hinges.to(torch.int32).contiguous(), dtype=wp.int32),
+                              wp.from_torch(cloth.bend_stiffness.to(torch.float64).contiguous(), dtype=wp.float64)])
+    return out.to(x.dtype)
+
+
+@torch.no_grad()
+def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int) -> Tensor:
+    """The strain majorant's 3×3 blocks summed per vertex pair, (num_pairs, 3, 3) float64 [N/m].
+
+    pair_of_corner (F, 9) int32, on x's device: for face f and corners a, b, the pair that face
+    f's block (a, b) is added to (rows of vertex a, columns of vertex b), entry 3a + b. With
+    ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3).
+    """
+    wp, _, strain_pair, _ = _kernels()
+    out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=x.device)
+    if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
+        raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
+                         f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
+    with torch_stream(x.device):
+        if cloth.faces.shape[0]:
+            wp.launch(strain_pair, dim=cloth.faces.shape[0], device=wp.device_from_torch(x.device),
+                      inputs=[*_strain_inputs(wp, x, cloth), wp.from_torch(pair_of_corner.contiguous(), dtype=wp.int32)],
+                      outputs=[wp.from_torch(out, dtype=wp.mat33d)])
+    return out
