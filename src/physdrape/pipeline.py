@@ -99,12 +99,15 @@ class PosedBodies:
                                               self.state.faces)
         return self._surfaces[key]
 
-    def single(self, index: int) -> BodySurface:
-        """Body `index` alone as a `BodySurface` in the state's dtype and device (what the skinning
-        transfer holds the garment out of while it limits X_init's stretch)."""
-        key = ("one", index)
+    def single(self, index: int, dtype: torch.dtype) -> BodySurface:
+        """Body `index` alone as a `BodySurface` on the state's device (what the skinning transfer
+        holds the garment out of while it limits X_init's stretch), in `dtype`: the model's
+        surface itself when the batch has one body there."""
+        if self.state.batch_size == 1:
+            return self.surface(dtype, self.state.verts.device)
+        key = ("one", index, dtype)
         if key not in self._surfaces:
-            self._surfaces[key] = BodySurface(self.state.verts[index:index + 1].detach(), self.state.faces)
+            self._surfaces[key] = BodySurface(self.state.verts[index:index + 1].detach().to(dtype), self.state.faces)
         return self._surfaces[key]
 
 
@@ -168,7 +171,7 @@ class DrapePipeline:
         """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype."""
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         with torch.no_grad():
-            return self.transfer(template).apply(select(posed.state, index), surface=posed.single(index))[0]
+            return self.transfer(template).apply(select(posed.state, index), surface=posed.single(index, self.dtype))[0]
 
     def build(self, jobs: Sequence[Job], state: BodyState | PosedBodies) -> DrapeInput:
         """The model's input for `jobs` on the posed bodies of `state` (one job per garment), on the

@@ -301,8 +301,9 @@ class SkinningTransfer:
                 (B, Vb, 4, 4)) of the body model the weights were fitted on.
             garment_verts: garment in the canonical pose on the canonical body [m], shape (V, 3)
                 or (B, V, 3); default the fitted template.
-            surface: the posed bodies of ``body`` as a `BodySurface` in their dtype, if the caller
-                holds one (else it is built here for the strain limiting's contact).
+            surface: the posed bodies of ``body`` as a `BodySurface` (any dtype: it is queried in
+                its own), if the caller holds one (else it is built here for the strain limiting's
+                contact).
 
         Returns:
             X_init: garment positions [m], shape (B, V, 3), in the dtype of ``body.rest_verts``;

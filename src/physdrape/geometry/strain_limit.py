@@ -54,7 +54,8 @@ def limit_edge_stretch(
             and every vertex above its floor).
         relaxation: over-relaxation of the averaged corrections (1 = plain Jacobi; < 2).
         body: posed bodies to keep the vertices out of (one per leading index: x of shape
-            (B, V, 3) with B bodies, or (V, 3) with one), or None for no contact.
+            (B, V, 3) with B bodies, or (V, 3) with one), or None for no contact; queried in its
+            own dtype.
         margin: after each sweep, a vertex is pushed back out to this distance from the body [m],
             or to its starting signed distance if that was smaller (strain limiting never moves
             a vertex deeper into the margin or the body; resolving what was already there is the
@@ -94,11 +95,11 @@ def limit_edge_stretch(
     x = flat
     for sweep in range(iterations):
         if body is not None and sweep % requery_every == 0:
-            with torch.no_grad():
-                query = body.query(x.detach().reshape(shape))
-            planes = query.closest.reshape(-1, 3), query.normal.reshape(-1, 3)
+            with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
+                query = body.query(x.detach().reshape(shape).to(body.verts.dtype))
+            planes = query.closest.reshape(-1, 3).to(x.dtype), query.normal.reshape(-1, 3).to(x.dtype)
             if floor is None:  # never deeper than at the start, never into the margin
-                floor = query.signed_distance.reshape(-1).clamp_max(margin)
+                floor = query.signed_distance.reshape(-1).to(x.dtype).clamp_max(margin)
         d = x[j] - x[i]
         length = d.norm(dim=-1)
         excess = (length - bound).clamp_min(0.0)
