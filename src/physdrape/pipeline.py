@@ -101,13 +101,14 @@ class PosedBodies:
 
     def single(self, index: int, dtype: torch.dtype) -> BodySurface:
         """Body `index` alone as a `BodySurface` on the state's device (what the skinning transfer
-        holds the garment out of while it limits X_init's stretch), in `dtype`: the model's
-        surface itself when the batch has one body there."""
+        holds the garment out of while it limits X_init's stretch), in `dtype`: a selection of the
+        batch's surface in `dtype` there (the model's own on that device), its BVH shared."""
+        batch = self.surface(dtype, self.state.verts.device)
         if self.state.batch_size == 1:
-            return self.surface(dtype, self.state.verts.device)
+            return batch
         key = ("one", index, dtype)
         if key not in self._surfaces:
-            self._surfaces[key] = BodySurface(self.state.verts[index:index + 1].detach().to(dtype), self.state.faces)
+            self._surfaces[key] = batch.select(index)
         return self._surfaces[key]
 
 

@@ -388,3 +388,16 @@ def test_search_split_over_threads_is_bit_identical(sign_method):
         assert torch.equal(getattr(single, field), getattr(split, field)), field
     with pytest.raises(ValueError, match="search_threads"):
         BodySurface(verts, faces, search_threads=0)
+
+
+def test_selected_body_equals_a_surface_of_that_body_alone():
+    verts, faces = MESHES["bumpy"]()
+    batch = torch.stack([verts, verts * 1.1 + 0.02])
+    surface = BodySurface(batch, faces)
+    x = sample_points(verts, faces, 900, 300, seed=5)
+    for index in range(2):
+        alone = BodySurface(batch[index], faces).query(x)
+        one = surface.select(index).query(x)
+        for field in ("closest", "normal", "signed_distance", "face", "inside"):
+            assert torch.equal(getattr(one, field), getattr(alone, field)), field
+    assert surface._doubtful is not None  # found once, for the batch, through the selections

@@ -106,6 +106,21 @@ class BodyBVH:
             ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
             self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
 
+    def select(self, index: int) -> BodyBVH:
+        """Body `index` alone, sharing this batch's BVH (no copy, no build). A refit of either moves
+        both; the selection keeps this batch alive."""
+        wp, _, _ = _query_kernels()
+        one = object.__new__(BodyBVH)
+        one.with_winding_number = self.with_winding_number
+        one._device, one._wp_device = self._device, self._wp_device
+        one._points32 = self._points32[index:index + 1]
+        one._indices32 = self._indices32
+        one._meshes = [self._meshes[index]]
+        one._parent = self
+        one._mesh_ids = wp.array(np.array([self._meshes[index].id], dtype=np.uint64), dtype=wp.uint64,
+                                 device=self._wp_device)
+        return one
+
     def refit(self, verts: Tensor) -> None:
         """Move the bodies to new vertex positions of the same shape (B, Vb, 3): refit, no rebuild."""
         self._points32.copy_(verts.detach())

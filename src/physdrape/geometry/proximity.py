@@ -246,12 +246,29 @@ class BodySurface:
                            near_tol=self.near_tol, winding_accuracy=self.winding_accuracy,
                            search_threads=self.search_threads)
 
+    def select(self, index: int) -> BodySurface:
+        """Body `index` alone as a surface of one body (same settings), sharing this surface's BVH
+        and what it has found of its doubtful faces: nothing is built. Do not `update` either
+        while the other is in use."""
+        one = object.__new__(BodySurface)
+        one.sign_method, one.search_threads = self.sign_method, self.search_threads
+        one.near_tol, one.winding_accuracy = self.near_tol, self.winding_accuracy
+        one.faces, one._edge_nbr, one._border = self.faces, self._edge_nbr, self._border
+        one.verts = self.verts[index:index + 1]
+        one._vertex_normals = None if self._vertex_normals is None else self._vertex_normals[index:index + 1]
+        one._doubtful = None if self._doubtful is None else self._doubtful[index:index + 1]
+        one._points_asked = self._points_asked
+        one._bvh = self._bvh.select(index)
+        one._selected_from = (self, index)
+        return one
+
     def _build(self, verts: Tensor) -> None:
         """(Re)build one Warp BVH per body."""
         self.verts = verts
         self._vertex_normals = None
         self._doubtful = None
         self._points_asked = 0
+        self._selected_from: tuple[BodySurface, int] | None = None
         self._bvh = BodyBVH(verts, self.faces, with_winding_number=self.sign_method is SignMethod.WINDING_NUMBER)
 
     def update(self, verts: Tensor) -> None:
@@ -297,6 +314,10 @@ class BodySurface:
         sheet, on which the pseudo-normal of the closest feature gives the exact sign.
         """
         if self._doubtful is not None:
+            return self._doubtful
+        if self._selected_from is not None:  # found once for the whole batch
+            batch, index = self._selected_from
+            self._doubtful = batch.doubtful_faces()[index:index + 1]
             return self._doubtful
         if self.sign_method is not SignMethod.WINDING_NUMBER:
             raise ValueError("doubtful_faces needs sign_method=WINDING_NUMBER")
