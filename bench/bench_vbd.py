@@ -267,7 +267,8 @@ def _write_json_atomic(path: str, payload: dict) -> None:
         raise
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The bench's flags, with the VBD settings and their defaults (also read by time_to_quality.py)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT)
     parser.add_argument("--instances", type=int, default=3)
@@ -292,7 +293,11 @@ def main(argv=None) -> int:
     parser.add_argument("--contact-gap", type=float, default=1e-2, help="contact detection reach beyond r [m]")
     parser.add_argument("--json", help="also write the per-instance numbers here (atomically)")
     parser.add_argument("--verbose", action="store_true", help="print every energy check")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
     wp.config.quiet = True
     wp.init()

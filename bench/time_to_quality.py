@@ -57,7 +57,6 @@ import statistics
 import sys
 import time
 from pathlib import Path
-from unittest import mock
 
 import torch
 from bench_speed import fmt_bound
@@ -98,34 +97,19 @@ def parse_steps(text: str) -> list[int]:
 
 def vbd_settings(extra: list[str]):
     """`bench/bench_vbd.py`'s VBD settings (its flags and defaults, `extra` flags applied), or None
-    with the reason when `newton` is not installed. Its parser is built inside its `main`, so
-    that is run up to its `parse_args` and stopped there."""
+    with the reason when `newton` is not installed."""
     if importlib.util.find_spec("newton") is None:
         return None, f"`newton` is not installed (`{VBD_INSTALL}`): the VBD curve is skipped"
     import bench_vbd
 
-    class _Parsed(Exception):
-        pass
-
-    captured = {}
-    parse = argparse.ArgumentParser.parse_args
-
-    def capture(parser, args=None, namespace=None):
-        captured["args"] = parse(parser, args, namespace)
-        raise _Parsed
-
-    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture):
-        try:
-            bench_vbd.main(extra)
-        except _Parsed:
-            pass
+    settings = bench_vbd.build_parser().parse_args(extra)
     import newton
     import warp as wp
 
     wp.config.quiet = True
     wp.init()
     wp.set_device("cpu")
-    return captured["args"], f"newton {newton.__version__}, warp {wp.__version__}, CPU"
+    return settings, f"newton {newton.__version__}, warp {wp.__version__}, CPU"
 
 
 def timed_model(model, batch, steps: int, repeats: int, *, network: bool) -> tuple[float, torch.Tensor]:
