@@ -25,8 +25,10 @@ import sys
 import time
 
 import torch
+from timing import median_bound
 
 from physdrape.body.anny_body import get_anny_body
+from physdrape.checkpoint import load_model
 from physdrape.eval.evaluate import (
     Contact,
     EvalConfig,
@@ -35,7 +37,6 @@ from physdrape.eval.evaluate import (
     run_oracle,
     total_energy,
 )
-from physdrape.checkpoint import load_model
 from physdrape.model import Variant
 
 
@@ -45,12 +46,6 @@ def time_to_energy(history, target: float) -> float:
         if record.energy <= target:
             return record.wall
     return math.inf
-
-
-def median_bound(values: list[float], bounds: list[bool]) -> tuple[float, bool]:
-    """(median, is a lower bound): values with bounds[i] True are lower bounds (inf: never)."""
-    med = statistics.median(values)
-    return med, any(b and v <= med for v, b in zip(values, bounds))
 
 
 def fmt_bound(value: float, bound: bool) -> str:

@@ -60,6 +60,7 @@ from pathlib import Path
 
 import torch
 from bench_speed import fmt_bound
+from timing import median_bound
 
 from physdrape.body.anny_body import get_anny_body
 from physdrape.checkpoint import bundled_model, load_model
@@ -239,15 +240,6 @@ def run_header(args) -> dict:
             "date_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
             "load_average_start": list(os.getloadavg()), "torch_threads": torch.get_num_threads(),
             "cpu_count": os.cpu_count(), "versions": prov}
-
-
-def median_bound(values: list[float], bounds: list[bool]) -> tuple[float, bool]:
-    """(median, is a lower bound): values with bounds[i] True are lower bounds (inf: never). The
-    median is a bound when a bound lies at or below its upper middle value (with an even count
-    both middle values enter the median)."""
-    med = statistics.median(values)
-    upper = sorted(values)[len(values) // 2]
-    return med, any(b and v <= upper for v, b in zip(values, bounds, strict=True))
 
 
 def _median(values: list[float], bounds: list[bool]) -> dict:

@@ -1,4 +1,5 @@
-"""The one timing helper every benchmark uses: warm-up calls, then the median of timed repeats."""
+"""The timing helpers every benchmark uses: warm-up calls, then the median of timed repeats; and the
+median of times of which some are only lower bounds (a run that stopped on its budget)."""
 
 from __future__ import annotations
 
@@ -16,3 +17,12 @@ def median_ms(fn, repeats: int, *, warmup: int = 1) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return 1e3 * statistics.median(times)
+
+
+def median_bound(values: list[float], bounds: list[bool]) -> tuple[float, bool]:
+    """(median, is a lower bound): values with bounds[i] True are lower bounds (inf: never). The
+    median is a bound when a bound lies at or below its upper middle value (with an even count
+    both middle values enter the median)."""
+    med = statistics.median(values)
+    upper = sorted(values)[len(values) // 2]
+    return med, any(b and v <= upper for v, b in zip(values, bounds, strict=True))

@@ -34,7 +34,6 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
 
-
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
 #: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
 DEFAULT_DTYPE = torch.float32

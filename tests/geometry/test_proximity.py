@@ -14,7 +14,12 @@ import trimesh
 
 from physdrape.geometry.closest_point import closest_point_on_triangle
 from physdrape.geometry.normals import angle_weighted_vertex_normals
-from physdrape.geometry.proximity import BodySurface, SignMethod, SurfaceQuery, query_body_surface
+from physdrape.geometry.proximity import (
+    BodySurface,
+    SignMethod,
+    SurfaceQuery,
+    query_body_surface,
+)
 
 EPS = 2e-3  # collision margin of the handler [m]
 

@@ -12,7 +12,10 @@ from physics_cases import random_rotation
 from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.physics import Cloth
-from physdrape.physics.hessians import bend_gauss_newton_hessian, project_psd, strain_hessian
+from physdrape.physics.hessians import (
+    bend_gauss_newton_hessian,
+    strain_hessian,
+)
 from physdrape.physics.majorant import pair_blocks, vertex_blocks
 from physdrape.physics.strain import deformation_gradient, green_strain, stress
 

@@ -44,7 +44,6 @@ from physdrape.pipeline import (
 )
 from physdrape.progress import iteration_progress
 
-
 #: Posed body batches a `Draper` keeps, with their surfaces, for drapes on the same shape and poses.
 POSED_CACHE_SIZE = 8
 
@@ -363,7 +362,6 @@ class Draper:
         next frame starts from (else None)."""
         t0 = time.perf_counter()
         rig = jobs[0].pose.rig
-        body = self.body(rig)
         pipeline = self.pipeline(rig)
         poses = {job.pose_id: job.pose for job in jobs}  # one posed body per distinct pose
         slot = {pose_id: k for k, pose_id in enumerate(poses)}

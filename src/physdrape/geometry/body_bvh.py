@@ -124,7 +124,6 @@ class BodyBVH:
     def refit(self, verts: Tensor) -> None:
         """Move the bodies to new vertex positions of the same shape (B, Vb, 3): refit, no rebuild."""
         self._points32.copy_(verts.detach())
-        wp, _, _ = _query_kernels()
         with torch_stream(self._device):
             for mesh in self._meshes:
                 mesh.refit()

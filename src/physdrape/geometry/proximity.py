@@ -62,9 +62,9 @@ from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
 
 __all__ = [
     "DOUBT_RADIUS_EDGES",
+    "BodySurface",
     "SignMethod",
     "SurfaceQuery",
-    "BodySurface",
     "query_body_surface",
 ]
 
