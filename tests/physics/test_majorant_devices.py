@@ -1,0 +1,33 @@
+"""The preconditioner's Warp kernels on every available device: the CPU's blocks, where the
+garment lives."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from device_params import DEVICES
+
+from physdrape.geometry.garment import Garment
+from physdrape.geometry.primitives import open_cylinder
+from physdrape.physics import Cloth
+from physdrape.physics.majorant import pair_blocks, vertex_blocks
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_blocks_on_device_match_the_cpu(device):
+    garment = Garment.from_mesh(*open_cylinder(8, 16, radius=0.12, length=0.3), dtype=torch.float64)
+    cloth = Cloth.build(garment)
+    gen = torch.Generator().manual_seed(0)
+    x = garment.rest * torch.tensor([1.05, 0.95, 1.0], dtype=torch.float64)
+    x = x + 2e-3 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
+    faces = cloth.faces.shape[0]
+    pairs = torch.arange(9 * faces, dtype=torch.int32).reshape(faces, 9)
+    want_vertex, want_pairs = vertex_blocks(x, cloth), pair_blocks(x, cloth, pairs, 9 * faces)
+    on = Cloth.build(garment.to(device=device))
+    got_vertex = vertex_blocks(x.to(device), on)
+    got_pairs = pair_blocks(x.to(device), on, pairs.to(device), 9 * faces)
+    assert got_vertex.device.type == device and got_pairs.device.type == device
+    scale = want_pairs.abs().max().item()
+    # atomic sums may add in another order on a GPU
+    torch.testing.assert_close(got_vertex.cpu(), want_vertex, rtol=1e-12, atol=1e-12 * scale)
+    torch.testing.assert_close(got_pairs.cpu(), want_pairs, rtol=1e-12, atol=1e-12 * scale)
