@@ -57,12 +57,15 @@ class Template:
         verts: rest positions [m], shape (V, 3) float64.
         faces: triangles, shape (F, 3) int64.
         key: a digest of verts and faces: equal meshes share cached transfers.
+        sizer: what gives the garment its rest shape on another body when it is sized to fit
+            (`garments.sizing.MhcloSizer` for an .mhclo garment), or None.
     """
 
     name: str
     verts: np.ndarray
     faces: np.ndarray
     key: str
+    sizer: object | None = None
 
     @staticmethod
     def from_mesh(verts, faces, *, name: str = "garment") -> Template:
@@ -79,12 +82,15 @@ class Template:
 @dataclass(frozen=True)
 class Job:
     """One drape: `template` on body `body` of the posed batch, in `material`; `x_init` [m] (V, 3)
-    a start of its own (a warm-started frame) or None for the skinned X_init."""
+    a start of its own (a warm-started frame) or None for the skinned X_init; `rest` [m] (V, 3)
+    the garment's rest shape on this body in its rest pose (a garment sized to fit,
+    `garments.sizing`) or None for the template's."""
 
     template: Template
     body: int
     material: Material
     x_init: Tensor | None = None
+    rest: np.ndarray | None = None
 
 
 def select(state: BodyState, index: int) -> BodyState:
@@ -125,17 +131,29 @@ class DrapePipeline:
             self._transfers[template.key] = transfer
         return self._transfers[template.key]
 
-    def garment(self, template: Template) -> Garment:
-        """The template's rest-state quantities in the pipeline's dtype, on its device (computed once)."""
+    def garment(self, template: Template, rest: np.ndarray | None = None) -> Garment:
+        """The template's rest-state quantities in the pipeline's dtype, on its device (computed
+        once); with `rest` [m] (V, 3), those of that rest shape (computed each time)."""
+        if rest is not None:
+            return Garment.from_mesh(rest, template.faces, name=template.name, dtype=self.dtype).to(device=self.device)
         if template.key not in self._garments:
             self._garments[template.key] = Garment.from_mesh(template.verts, template.faces, name=template.name,
                                                              dtype=self.dtype).to(device=self.device)
         return self._garments[template.key]
 
-    def x_init(self, template: Template, state: BodyState, index: int = 0) -> Tensor:
-        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype."""
+    def x_init(self, template: Template, state: BodyState, index: int = 0, rest: np.ndarray | None = None) -> Tensor:
+        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype; with
+        `rest` [m] (V, 3), that rest shape skinned instead of the template's plus ΔX_shape."""
         with torch.no_grad():
-            return self.transfer(template).apply(select(state, index))[0]
+            body = select(state, index)
+            rest_t = None if rest is None else torch.as_tensor(rest, dtype=body.rest_verts.dtype)
+            return self.transfer(template).apply(body, rest_verts=rest_t)[0]
+
+    def fitted_rest(self, template: Template, state: BodyState, index: int = 0) -> np.ndarray:
+        """The skinning transfer's shape part X_temp + ΔX_shape [m] (V, 3) float64 on body `index`
+        of `state`: the rest shape of a mesh garment sized to fit (`garments.sizing`)."""
+        with torch.no_grad():
+            return self.transfer(template).shaped_rest(select(state, index))[0].to(torch.float64).cpu().numpy()
 
     def build(self, jobs: Sequence[Job], state: BodyState) -> DrapeInput:
         """The model's input for `jobs` on the posed bodies of `state` (one job per garment), on the
@@ -143,9 +161,9 @@ class DrapePipeline:
         if not jobs:
             raise ValueError("no jobs to drape")
         device = self.device
-        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, state, job.body))
+        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, state, job.body, job.rest))
                   .to(device=device, dtype=self.dtype) for job in jobs]
-        batch = GarmentBatch.pack([self.garment(job.template) for job in jobs])
+        batch = GarmentBatch.pack([self.garment(job.template, job.rest) for job in jobs])
         cloth = Cloth.build(batch, [job.material for job in jobs])
         bodies = BodySurface(state.verts.detach().to(device=device, dtype=self.dtype), state.faces)
         body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)

@@ -29,6 +29,7 @@ from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
+from physdrape.garments.sizing import Sizing, default_sizing
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, energy_terms, internal_forces, relax
 from physdrape.physics.metrics import drape_metrics
@@ -135,6 +136,7 @@ class Draper:
         self._templates: dict[tuple[str, str], Template] = {}
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
         self._detached: dict[tuple[str, str], str | None] = {}
+        self._rests: dict[tuple, np.ndarray] = {}
 
     # ------------------------------------------------------------------ inputs
     def body(self, rig: str = "anny"):
@@ -227,7 +229,7 @@ class Draper:
     def drape(self, garments, *, shape=None, pose=None, material=None, refine: bool = False,
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
               refine_iters: int = 30, refine_time_s: float = 60.0, units: str = "m",
-              allow_detached: bool = False) -> list[DrapeResult]:
+              allow_detached: bool = False, sizing: str | None = None) -> list[DrapeResult]:
         """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
@@ -250,6 +252,11 @@ class Draper:
                 generated garments and .mhclo are placed in metres already). Results are in metres.
             allow_detached: drape a garment that neither touches nor surrounds the canonical body
                 (warning with a `DrapeWarning`) instead of refusing it with a DrapeError.
+            sizing: the garments' rest shape on the body (`garments.sizing`): "fit" follows the
+                body's shape (an .mhclo through its MakeHuman binding, any other garment through
+                the skinning transfer's shape part), so a garment is worn where it was authored;
+                "fixed" keeps the template's (try-on: one size on every body). None: "fit" for
+                .mhclo garments, "fixed" for the others.
 
         Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
 
@@ -266,6 +273,9 @@ class Draper:
         if steps is not None and (not isinstance(steps, int) or steps < 0):
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         steps = self.steps if steps is None else steps
+        if sizing is not None and sizing not in {s.value for s in Sizing}:
+            raise DrapeError(f"sizing must be one of {', '.join(s.value for s in Sizing)} or None (the garment's "
+                             f"default), got {sizing!r}")
         templates = [self.garment(g, units=units) for g in g_specs]
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
@@ -281,7 +291,7 @@ class Draper:
         self._check_attached(jobs, allow_detached)
         prev = sequences.predecessors([j.pose for j in jobs], [j.template.key for j in jobs])
         options = {"steps": steps, "refine": refine, "keep_trace": keep_trace, "refine_iters": refine_iters,
-                   "refine_time_s": refine_time_s}
+                   "refine_time_s": refine_time_s, "sizing": sizing}
         results: dict[int, DrapeResult] = {}
         carried: dict[int, _Warm] = {}  # the last drape of each running sequence
         bar = None
@@ -326,7 +336,7 @@ class Draper:
 
     @torch.no_grad()
     def _drape_batch(self, jobs: list[_Job], shape: Tensor, *, steps: int, refine: bool, keep_trace: bool,
-                     refine_iters: int, refine_time_s: float, warm: list[_Warm] | None = None,
+                     refine_iters: int, refine_time_s: float, sizing: str | None, warm: list[_Warm] | None = None,
                      physics_only: bool = False) -> tuple[list[DrapeResult], list[_Warm | None]]:
         """Drape one batch of jobs on one rig. warm: per job the previous frame (None: X_init by
         skinning); physics_only: skip the network (solver steps with f̂ = 0 and the collision
@@ -354,7 +364,8 @@ class Draper:
             if warm is not None and warm[k] is not None:
                 x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
                                                 transforms, select(state, b))
-            pipeline_jobs.append(Job(job.template, b, job.material, x_init))
+            rest = self._rest(job.template, sizing, state, b, shapes[b:b + 1], pipeline)
+            pipeline_jobs.append(Job(job.template, b, job.material, x_init, rest))
             following.append(transforms)
         inp = pipeline.build(pipeline_jobs, state)
         t2 = time.perf_counter()
@@ -384,6 +395,22 @@ class Draper:
         nxt = [None if t is None else _Warm(xs[k].to(device=t.device, dtype=POSE_DTYPE), t)
                for k, t in enumerate(following)]
         return results, nxt
+
+    def _rest(self, template: Template, sizing: str | None, state: BodyState, index: int, shape: Tensor,
+              pipeline: DrapePipeline) -> np.ndarray | None:
+        """The garment's rest shape [m] (V, 3) on body `index` of `state` (phenotypes or β `shape`
+        (1, S)) when it is sized to fit, None when fixed (`garments.sizing`); cached per shape."""
+        mode = default_sizing(template.sizer) if sizing is None else Sizing(sizing)
+        if mode is Sizing.FIXED:
+            return None
+        by_binding = template.sizer is not None and self.smpl is None
+        key = (template.key, by_binding, tuple(shape.reshape(-1).tolist()))
+        if key not in self._rests:
+            if len(self._rests) >= 64:  # a manifest may drape thousands of shapes: keep the recent ones
+                del self._rests[next(iter(self._rests))]
+            self._rests[key] = (template.sizer.rest(shape) if by_binding
+                                else pipeline.fitted_rest(template, state, index))
+        return self._rests[key]
 
     @staticmethod
     def _convergence(out, inp, count: int) -> list[dict[str, list[float]]]:

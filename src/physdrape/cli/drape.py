@@ -261,7 +261,7 @@ def cmd_drape(args: argparse.Namespace) -> int:
     # 2. drape (the API validates garments, units, placement, bodies, poses and the checkpoint)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender, device=process_device(args.device))
-    common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached}
+    common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached, "sizing": args.sizing}
     what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
     with slow_phase(what):
         results = _drape_noting_warnings(
@@ -341,6 +341,9 @@ def add_parser(sub) -> None:
                    "(default m); they are converted to metres, and so are the outputs")
     g.add_argument("--allow-detached", action="store_true", help="drape a garment that neither touches nor "
                    "surrounds the canonical body (a warning instead of an error)")
+    g.add_argument("--sizing", choices=("fit", "fixed"), default=None, help="the garment's rest shape on the body: "
+                   "fit = follows the body's shape (worn where it was authored), fixed = the template's (one size "
+                   "tried on); default fit for .mhclo, fixed for other garments")
     b = drape.add_argument_group("body")
     b.add_argument("--shape", metavar="NAME=V,...", help="Anny phenotypes in [0, 1] (gender, age, muscle, weight, "
                    "height, proportions; missing ones 0.5), e.g. gender=0.2,weight=0.8")
