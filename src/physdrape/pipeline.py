@@ -26,11 +26,12 @@ from torch import Tensor
 
 from physdrape.body.model import BodyState
 from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.garments.pieces import garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
-
+from physdrape.physics.grip import Grip
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
 #: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
@@ -84,13 +85,15 @@ class Job:
     """One drape: `template` on body `body` of the posed batch, in `material`; `x_init` [m] (V, 3)
     a start of its own (a warm-started frame) or None for the skinned X_init; `rest` [m] (V, 3)
     the garment's rest shape on this body in its rest pose (a garment sized to fit,
-    `garments.sizing`) or None for the template's."""
+    `garments.sizing`) or None for the template's; `grip` the grip stiffness κ [N/m³] of its
+    waistband (`physics.grip`; 0: none)."""
 
     template: Template
     body: int
     material: Material
     x_init: Tensor | None = None
     rest: np.ndarray | None = None
+    grip: float = 0.0
 
 
 def select(state: BodyState, index: int) -> BodyState:
@@ -120,6 +123,7 @@ class DrapePipeline:
         self.max_stretch = max_stretch
         self._transfers: dict[str, SkinningTransfer] = {}
         self._garments: dict[str, Garment] = {}
+        self._bands: dict[str, np.ndarray] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
@@ -167,4 +171,35 @@ class DrapePipeline:
         cloth = Cloth.build(batch, [job.material for job in jobs])
         bodies = BodySurface(state.verts.detach().to(device=device, dtype=self.dtype), state.faces)
         body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)
-        return DrapeInput(batch, cloth, torch.cat(x_init), bodies, body_of_job[batch.vert_garment])
+        x_init = torch.cat(x_init)
+        grip = self._grip(jobs, batch, x_init, bodies)
+        if grip is not None:
+            cloth = replace(cloth, grip=grip)
+        return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
+
+    def grip_band(self, template: Template) -> np.ndarray:
+        """The template's gripping vertices, its waistband's strip (`garments.pieces.waistband_band`),
+        (K,) int64 (computed once)."""
+        if template.key not in self._bands:
+            parts = garment_parts(template.verts, template.faces)
+            self._bands[template.key] = waistband_band(template.verts, parts)
+        return self._bands[template.key]
+
+    def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
+        """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to
+        the body there, k_i = κ · (vertex area); None when no job grips."""
+        index = [torch.as_tensor(self.grip_band(job.template), device=batch.device) + batch.vert_offsets[k]
+                 for k, job in enumerate(jobs) if job.grip > 0]
+        if not any(len(i) for i in index):
+            return None
+        kappa = torch.cat([torch.full((len(self.grip_band(job.template)),), float(job.grip), dtype=x_init.dtype,
+                                      device=batch.device) for job in jobs if job.grip > 0])
+        index = torch.cat(index)
+        area = torch.zeros(batch.num_verts, dtype=x_init.dtype, device=batch.device).index_add_(
+            0, batch.faces.reshape(-1), (batch.rest_area.to(x_init.dtype) / 3.0).repeat_interleave(3))
+        body_of_vertex = torch.tensor([job.body for job in jobs], dtype=torch.int64,
+                                      device=batch.device)[batch.vert_garment]
+        with torch.no_grad():
+            normal = bodies.query(x_init[index].to(bodies.verts.dtype), body_index=body_of_vertex[index]).normal
+        return Grip(index=index, anchor=x_init[index].detach().clone(), normal=normal.to(x_init.dtype),
+                    stiffness=kappa * area[index])

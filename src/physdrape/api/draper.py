@@ -12,9 +12,10 @@ by the oracle on the CPU, and results are numpy arrays whatever the device.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ from physdrape.devices import DeviceError, resolve_device
 from physdrape.garments.sizing import Sizing, default_sizing
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, energy_terms, internal_forces, relax
+from physdrape.physics.grip import DEFAULT_GRIP_STIFFNESS
 from physdrape.physics.metrics import drape_metrics
 from physdrape.pipeline import (
     DEFAULT_DTYPE,
@@ -229,7 +231,8 @@ class Draper:
     def drape(self, garments, *, shape=None, pose=None, material=None, refine: bool = False,
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
               refine_iters: int = 30, refine_time_s: float = 60.0, units: str = "m",
-              allow_detached: bool = False, sizing: str | None = None) -> list[DrapeResult]:
+              allow_detached: bool = False, sizing: str | None = None,
+              grip: float | None = None) -> list[DrapeResult]:
         """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
@@ -257,6 +260,10 @@ class Draper:
                 the skinning transfer's shape part), so a garment is worn where it was authored;
                 "fixed" keeps the template's (try-on: one size on every body). None: "fit" for
                 .mhclo garments, "fixed" for the others.
+            grip: the grip stiffness κ [N/m³] of a multi-piece garment's waistband (`physics.grip`:
+                its strip of fabric held tangentially where it was put on, as friction and elastic
+                hold a waistband); 0 turns it off; None: `DEFAULT_GRIP_STIFFNESS`. Garments
+                without a lower piece (tops, one-piece garments) have no waistband to grip.
 
         Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
 
@@ -276,6 +283,10 @@ class Draper:
         if sizing is not None and sizing not in {s.value for s in Sizing}:
             raise DrapeError(f"sizing must be one of {', '.join(s.value for s in Sizing)} or None (the garment's "
                              f"default), got {sizing!r}")
+        if grip is not None and not (isinstance(grip, (int, float)) and not isinstance(grip, bool)
+                                     and math.isfinite(grip) and grip >= 0):
+            raise DrapeError(f"grip must be a stiffness κ ≥ 0 [N/m³] (0: no grip) or None (the default "
+                             f"{DEFAULT_GRIP_STIFFNESS:g}), got {grip!r}")
         templates = [self.garment(g, units=units) for g in g_specs]
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
@@ -291,7 +302,8 @@ class Draper:
         self._check_attached(jobs, allow_detached)
         prev = sequences.predecessors([j.pose for j in jobs], [j.template.key for j in jobs])
         options = {"steps": steps, "refine": refine, "keep_trace": keep_trace, "refine_iters": refine_iters,
-                   "refine_time_s": refine_time_s, "sizing": sizing}
+                   "refine_time_s": refine_time_s, "sizing": sizing,
+                   "grip": DEFAULT_GRIP_STIFFNESS if grip is None else float(grip)}
         results: dict[int, DrapeResult] = {}
         carried: dict[int, _Warm] = {}  # the last drape of each running sequence
         bar = None
@@ -336,7 +348,8 @@ class Draper:
 
     @torch.no_grad()
     def _drape_batch(self, jobs: list[_Job], shape: Tensor, *, steps: int, refine: bool, keep_trace: bool,
-                     refine_iters: int, refine_time_s: float, sizing: str | None, warm: list[_Warm] | None = None,
+                     refine_iters: int, refine_time_s: float, sizing: str | None, grip: float,
+                     warm: list[_Warm] | None = None,
                      physics_only: bool = False) -> tuple[list[DrapeResult], list[_Warm | None]]:
         """Drape one batch of jobs on one rig. warm: per job the previous frame (None: X_init by
         skinning); physics_only: skip the network (solver steps with f̂ = 0 and the collision
@@ -365,7 +378,7 @@ class Draper:
                 x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
                                                 transforms, select(state, b))
             rest = self._rest(job.template, sizing, state, b, shapes[b:b + 1], pipeline)
-            pipeline_jobs.append(Job(job.template, b, job.material, x_init, rest))
+            pipeline_jobs.append(Job(job.template, b, job.material, x_init, rest, grip))
             following.append(transforms)
         inp = pipeline.build(pipeline_jobs, state)
         t2 = time.perf_counter()
@@ -377,6 +390,8 @@ class Draper:
         t3b = time.perf_counter()
         if refine:  # the oracle runs on the CPU (scipy's sparse factorisations), where the bodies are posed
             c64 = Cloth.build(inp.garments.to(torch.float64, device="cpu"), [job.material for job in jobs])
+            if inp.cloth.grip is not None:  # the oracle minimises the same energy, grip included
+                c64 = replace(c64, grip=inp.cloth.grip.to(torch.float64, device="cpu"))
             b64 = BodySurface(state.verts.to(device="cpu", dtype=torch.float64), state.faces)
             body_of_garment = torch.tensor([job.body for job in pipeline_jobs], device="cpu")
             res = relax(x.to(device="cpu", dtype=torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,

@@ -24,7 +24,7 @@ import numpy as np
 
 from physdrape.geometry.topology import boundary_loops, connected_components
 
-__all__ = ["GarmentParts", "garment_parts"]
+__all__ = ["GarmentParts", "garment_parts", "waistband_band"]
 
 
 @dataclass(frozen=True)
@@ -73,3 +73,14 @@ def garment_parts(verts: np.ndarray, faces: np.ndarray, *, axis_radius: float = 
     if upper:
         hem = min(upper, key=lambda loop: float(x[loop, 1].min()))
     return GarmentParts(piece=piece, num_pieces=num_pieces, lower=lower, waistband=waistband, hem=hem)
+
+
+def waistband_band(verts: np.ndarray, parts: GarmentParts, *, width: float = 0.04) -> np.ndarray:
+    """The vertices of the waistband's strip of fabric: those of the lower piece at most `width` [m]
+    below the waistband's lowest vertex (template, y-up), (K,) int64 sorted; empty without a
+    waistband."""
+    if parts.waistband is None:
+        return np.zeros(0, np.int64)
+    x = np.asarray(verts, np.float64)
+    floor = float(x[parts.waistband, 1].min()) - width
+    return np.flatnonzero((parts.piece == parts.lower) & (x[:, 1] >= floor)).astype(np.int64)

@@ -13,6 +13,7 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.physics.grip import Grip
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
 
 
@@ -29,6 +30,7 @@ class Cloth:
         mass: vertex masses (V,) [kg]; gravity: acceleration vector (G, 3) [m/s²] per garment;
         vert_garment, face_garment, hinge_garment: owning garment per element; num_garments: G.
         stiffness: (μ [Pa], λ [Pa], k_bend [J]) of each garment's material, (G, 3).
+        grip: the gripping vertices' tangential anchors (`physics.grip`), or None.
     All tensors live on the device of the garment batch it was built from (`to` moves them).
     """
 
@@ -46,6 +48,7 @@ class Cloth:
     hinge_garment: Tensor
     num_garments: int
     stiffness: Tensor
+    grip: Grip | None = None
 
     @staticmethod
     def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
@@ -104,6 +107,8 @@ class Cloth:
         `device` (None: kept)."""
         changes = {f.name: value.to(device=device, dtype=dtype if value.is_floating_point() else None)
                    for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)}
+        if self.grip is not None:
+            changes["grip"] = self.grip.to(dtype, device=device)
         return replace(self, **changes)
 
     def sum_per_garment(self, values: Tensor, owner: Tensor) -> Tensor:

@@ -26,6 +26,7 @@ from physdrape.physics.contact import (
     sample_index,
 )
 from physdrape.physics.forces import energy_terms, internal_forces
+from physdrape.physics.grip import grip_blocks
 from physdrape.physics.hessians import bend_gauss_newton_hessian, bend_hessian, strain_hessian
 from physdrape.physics.oracle.ipc import DEFAULT_BARRIER_STIFFNESS, DEFAULT_DHAT, _IPCContact
 from physdrape.physics.oracle.linalg import (
@@ -110,9 +111,10 @@ class _Newton:
 
     # ----------------------------------------------------------------------------- energies
     def total_energy(self, x: Tensor, contact_energy_g: Tensor) -> tuple[Tensor, dict]:
-        terms = energy_terms(x, self.cloth)
+        terms = energy_terms(x, self.cloth)  # strain, bend, gravity (and grip)
+        total = sum(terms.values()) + contact_energy_g
         terms["contact"] = contact_energy_g
-        return terms["strain"] + terms["bend"] + terms["gravity"] + contact_energy_g, terms
+        return total, terms
 
     def contact_state(self, x: Tensor) -> _ContactState:
         faces = self.cloth.faces
@@ -189,6 +191,8 @@ class _Newton:
                 hs = hs + hf
             else:
                 hv = torch.zeros(cloth.num_verts, 3, 3, dtype=dt)
+            if cloth.grip is not None:
+                hv = hv + grip_blocks(cloth.grip, cloth.num_verts, dtype=dt)
             t1 = time.perf_counter()
             data = self.asm.assemble(hs.numpy(), hb.numpy(), hv.numpy())
             diag_mean = float(np.mean(data[self.asm.diag_pos]))
