@@ -26,12 +26,14 @@ from torch import Tensor
 
 from physdrape.body.model import BodyState
 from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.garments.closures import panel_overlaps
 from physdrape.garments.pieces import garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
+from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
 #: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
@@ -86,7 +88,8 @@ class Job:
     a start of its own (a warm-started frame) or None for the skinned X_init; `rest` [m] (V, 3)
     the garment's rest shape on this body in its rest pose (a garment sized to fit,
     `garments.sizing`) or None for the template's; `grip` the grip stiffness κ [N/m³] of its
-    waistband (`physics.grip`; 0: none)."""
+    waistband (`physics.grip`; 0: none); `stitches` (K, 2) template vertex pairs tied by closures
+    (`physics.stitches`, rest distance = on the rest shape) or None."""
 
     template: Template
     body: int
@@ -94,6 +97,7 @@ class Job:
     x_init: Tensor | None = None
     rest: np.ndarray | None = None
     grip: float = 0.0
+    stitches: np.ndarray | None = None
 
 
 def select(state: BodyState, index: int) -> BodyState:
@@ -124,6 +128,7 @@ class DrapePipeline:
         self._transfers: dict[str, SkinningTransfer] = {}
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
+        self._closures: dict[str, np.ndarray] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
@@ -175,6 +180,9 @@ class DrapePipeline:
         grip = self._grip(jobs, batch, x_init, bodies)
         if grip is not None:
             cloth = replace(cloth, grip=grip)
+        stitches = self._stitches(jobs, batch)
+        if stitches is not None:
+            cloth = replace(cloth, stitches=stitches)
         return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
 
     def grip_band(self, template: Template) -> np.ndarray:
@@ -184,6 +192,30 @@ class DrapePipeline:
             parts = garment_parts(template.verts, template.faces)
             self._bands[template.key] = waistband_band(template.verts, parts)
         return self._bands[template.key]
+
+    def closure_pairs(self, template: Template) -> np.ndarray:
+        """Where the template's panels overlap on the canonical body, the trousers' overlap with a
+        top left out (`garments.closures.panel_overlaps`): the pairs closures tie, (K, 2) int64
+        (computed once)."""
+        if template.key not in self._closures:
+            parts = garment_parts(template.verts, template.faces)
+            exclude = None if parts.lower is None else parts.piece == parts.lower
+            self._closures[template.key] = panel_overlaps(template.verts, template.faces, parts.piece, exclude=exclude)
+        return self._closures[template.key]
+
+    def _stitches(self, jobs: Sequence[Job], batch: GarmentBatch) -> Stitches | None:
+        """The batch's stitches: each job's pairs, rest distance on its rest shape, stiffness
+        `DEFAULT_STITCH_STIFFNESS`; None when no job has any."""
+        parts = []
+        for k, job in enumerate(jobs):
+            if job.stitches is None or len(job.stitches) == 0:
+                continue
+            pairs = torch.as_tensor(np.asarray(job.stitches, np.int64), device=batch.device)
+            rest = batch.rest[batch.vert_offsets[k] + pairs]
+            parts.append(Stitches(pairs=pairs + batch.vert_offsets[k], rest=(rest[:, 0] - rest[:, 1]).norm(dim=-1),
+                                  stiffness=torch.full((len(pairs),), DEFAULT_STITCH_STIFFNESS, dtype=batch.dtype,
+                                                       device=batch.device)))
+        return Stitches.cat(parts) if parts else None
 
     def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
         """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to

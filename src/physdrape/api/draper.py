@@ -12,10 +12,9 @@ by the oracle on the CPU, and results are numpy arrays whatever the device.
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,19 +26,17 @@ from physdrape import checkpoint as ckpt
 from physdrape.api import placement, sequences, specs
 from physdrape.api.specs import BodyPose
 from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
+from physdrape.api.wear import Wear, Wearing
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
-from physdrape.garments.sizing import Sizing, default_sizing
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, energy_terms, internal_forces, relax
-from physdrape.physics.grip import DEFAULT_GRIP_STIFFNESS
 from physdrape.physics.metrics import drape_metrics
 from physdrape.pipeline import (
     DEFAULT_DTYPE,
     POSE_DTYPE,
     DrapePipeline,
-    Job,
     Template,
     select,
 )
@@ -134,11 +131,11 @@ class Draper:
             self._bodies[body.rig] = body
         #: the SMPL body when this Draper drapes on SMPL (then Anny is never loaded), else None
         self.smpl = self._bodies.get("smpl")
+        self._wearing = Wearing(by_binding=self.smpl is None)
         self._pipelines: dict[str, DrapePipeline] = {}
         self._templates: dict[tuple[str, str], Template] = {}
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
         self._detached: dict[tuple[str, str], str | None] = {}
-        self._rests: dict[tuple, np.ndarray] = {}
 
     # ------------------------------------------------------------------ inputs
     def body(self, rig: str = "anny"):
@@ -232,7 +229,7 @@ class Draper:
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
               refine_iters: int = 30, refine_time_s: float = 60.0, units: str = "m",
               allow_detached: bool = False, sizing: str | None = None,
-              grip: float | None = None) -> list[DrapeResult]:
+              grip: float | None = None, closures=None) -> list[DrapeResult]:
         """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
@@ -264,6 +261,11 @@ class Draper:
                 its strip of fabric held tangentially where it was put on, as friction and elastic
                 hold a waistband); 0 turns it off; None: `DEFAULT_GRIP_STIFFNESS`. Garments
                 without a lower piece (tops, one-piece garments) have no waistband to grip.
+            closures: what ties a garment's overlapping panels (button and wrap fronts) with
+                stitches (`physics.stitches`): "auto" (where the template's panels overlap on the
+                canonical body, `garments.closures`), "off", or the stitched vertex pairs of the
+                template, (K, 2) indices (an .mhclo template is remeshed: its own indices); None:
+                "auto".
 
         Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
 
@@ -280,14 +282,8 @@ class Draper:
         if steps is not None and (not isinstance(steps, int) or steps < 0):
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         steps = self.steps if steps is None else steps
-        if sizing is not None and sizing not in {s.value for s in Sizing}:
-            raise DrapeError(f"sizing must be one of {', '.join(s.value for s in Sizing)} or None (the garment's "
-                             f"default), got {sizing!r}")
-        if grip is not None and not (isinstance(grip, (int, float)) and not isinstance(grip, bool)
-                                     and math.isfinite(grip) and grip >= 0):
-            raise DrapeError(f"grip must be a stiffness κ ≥ 0 [N/m³] (0: no grip) or None (the default "
-                             f"{DEFAULT_GRIP_STIFFNESS:g}), got {grip!r}")
         templates = [self.garment(g, units=units) for g in g_specs]
+        wear = Wear.check(sizing=sizing, grip=grip, closures=closures, templates=templates)
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
             body_poses = [BodyPose(bp.rig, bp.pose, bp.label, None, bp.sequence) for bp in body_poses]
@@ -302,8 +298,7 @@ class Draper:
         self._check_attached(jobs, allow_detached)
         prev = sequences.predecessors([j.pose for j in jobs], [j.template.key for j in jobs])
         options = {"steps": steps, "refine": refine, "keep_trace": keep_trace, "refine_iters": refine_iters,
-                   "refine_time_s": refine_time_s, "sizing": sizing,
-                   "grip": DEFAULT_GRIP_STIFFNESS if grip is None else float(grip)}
+                   "refine_time_s": refine_time_s, "wear": wear}
         results: dict[int, DrapeResult] = {}
         carried: dict[int, _Warm] = {}  # the last drape of each running sequence
         bar = None
@@ -348,7 +343,7 @@ class Draper:
 
     @torch.no_grad()
     def _drape_batch(self, jobs: list[_Job], shape: Tensor, *, steps: int, refine: bool, keep_trace: bool,
-                     refine_iters: int, refine_time_s: float, sizing: str | None, grip: float,
+                     refine_iters: int, refine_time_s: float, wear: Wear,
                      warm: list[_Warm] | None = None,
                      physics_only: bool = False) -> tuple[list[DrapeResult], list[_Warm | None]]:
         """Drape one batch of jobs on one rig. warm: per job the previous frame (None: X_init by
@@ -377,8 +372,8 @@ class Draper:
             if warm is not None and warm[k] is not None:
                 x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
                                                 transforms, select(state, b))
-            rest = self._rest(job.template, sizing, state, b, shapes[b:b + 1], pipeline)
-            pipeline_jobs.append(Job(job.template, b, job.material, x_init, rest, grip))
+            pipeline_jobs.append(self._wearing.job(job.template, b, job.material, x_init, wear, state,
+                                                   shapes[b:b + 1], pipeline))
             following.append(transforms)
         inp = pipeline.build(pipeline_jobs, state)
         t2 = time.perf_counter()
@@ -390,8 +385,7 @@ class Draper:
         t3b = time.perf_counter()
         if refine:  # the oracle runs on the CPU (scipy's sparse factorisations), where the bodies are posed
             c64 = Cloth.build(inp.garments.to(torch.float64, device="cpu"), [job.material for job in jobs])
-            if inp.cloth.grip is not None:  # the oracle minimises the same energy, grip included
-                c64 = replace(c64, grip=inp.cloth.grip.to(torch.float64, device="cpu"))
+            c64 = c64.with_terms_of(inp.cloth)  # the oracle minimises the same energy (grip, stitches)
             b64 = BodySurface(state.verts.to(device="cpu", dtype=torch.float64), state.faces)
             body_of_garment = torch.tensor([job.body for job in pipeline_jobs], device="cpu")
             res = relax(x.to(device="cpu", dtype=torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,
@@ -410,22 +404,6 @@ class Draper:
         nxt = [None if t is None else _Warm(xs[k].to(device=t.device, dtype=POSE_DTYPE), t)
                for k, t in enumerate(following)]
         return results, nxt
-
-    def _rest(self, template: Template, sizing: str | None, state: BodyState, index: int, shape: Tensor,
-              pipeline: DrapePipeline) -> np.ndarray | None:
-        """The garment's rest shape [m] (V, 3) on body `index` of `state` (phenotypes or β `shape`
-        (1, S)) when it is sized to fit, None when fixed (`garments.sizing`); cached per shape."""
-        mode = default_sizing(template.sizer) if sizing is None else Sizing(sizing)
-        if mode is Sizing.FIXED:
-            return None
-        by_binding = template.sizer is not None and self.smpl is None
-        key = (template.key, by_binding, tuple(shape.reshape(-1).tolist()))
-        if key not in self._rests:
-            if len(self._rests) >= 64:  # a manifest may drape thousands of shapes: keep the recent ones
-                del self._rests[next(iter(self._rests))]
-            self._rests[key] = (template.sizer.rest(shape) if by_binding
-                                else pipeline.fitted_rest(template, state, index))
-        return self._rests[key]
 
     @staticmethod
     def _convergence(out, inp, count: int) -> list[dict[str, list[float]]]:

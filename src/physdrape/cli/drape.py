@@ -263,7 +263,7 @@ def cmd_drape(args: argparse.Namespace) -> int:
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender, device=process_device(args.device))
     common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached, "sizing": args.sizing,
-              "grip": args.grip}
+              "grip": args.grip, "closures": args.closures}
     what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
     with slow_phase(what):
         results = _drape_noting_warnings(
@@ -349,6 +349,9 @@ def add_parser(sub) -> None:
     g.add_argument("--grip", type=float, default=None, metavar="K", help="grip stiffness [N/m^3] of a multi-piece "
                    "garment's waistband, held where it was put on as friction holds it (0: off; default "
                    f"{DEFAULT_GRIP_STIFFNESS:g})")
+    g.add_argument("--closures", choices=("auto", "off"), default="auto", help="tie a garment's overlapping panels "
+                   "(button and wrap fronts, layered collars) with stitches where they overlap on the canonical body "
+                   "(default auto)")
     b = drape.add_argument_group("body")
     b.add_argument("--shape", metavar="NAME=V,...", help="Anny phenotypes in [0, 1] (gender, age, muscle, weight, "
                    "height, proportions; missing ones 0.5), e.g. gender=0.2,weight=0.8")

@@ -33,7 +33,7 @@ from physdrape.garments.mhclo import fit_mhclo, read_mhclo, resolve_body_penetra
 from physdrape.geometry.closest_point import closest_point_on_triangle
 from physdrape.geometry.mesh import read_obj
 
-__all__ = ["Sizing", "MhcloSizer", "default_sizing", "triangle_coordinates"]
+__all__ = ["MhcloSizer", "Sizing", "default_sizing", "triangle_coordinates"]
 
 
 class Sizing(str, enum.Enum):

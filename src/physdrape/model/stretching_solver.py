@@ -19,8 +19,7 @@ from physdrape.physics.contact import (
     garment_energy,
     query_samples,
 )
-from physdrape.physics.forces import internal_energy, internal_forces
-from physdrape.physics.grip import grip_blocks
+from physdrape.physics.forces import extra_blocks, internal_energy, internal_forces
 from physdrape.physics.hessians import vertex_blocks
 
 
@@ -268,10 +267,9 @@ class _Relaxation:
 
     def contact_blocks(self, distance: Tensor | None) -> Tensor | None:
         """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) from the samples'
-        distances d, samples within `band` of their plane taken at depth ≥ ε, plus the grip's
-        (`physics.grip`) when the cloth has one; or None without either."""
-        grip = self.cloth.grip
-        extra = None if grip is None else grip_blocks(grip, self.cloth.num_verts, dtype=self.cloth.dtype)
+        distances d, samples within `band` of their plane taken at depth ≥ ε, plus the grip's and
+        the stitches' (`physics.forces.extra_blocks`); or None without any."""
+        extra = extra_blocks(self.cloth)
         if distance is None:
             return extra
         distance = distance.detach()

@@ -15,6 +15,7 @@ from torch import Tensor
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.physics.grip import Grip
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
+from physdrape.physics.stitches import Stitches
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,7 @@ class Cloth:
         vert_garment, face_garment, hinge_garment: owning garment per element; num_garments: G.
         stiffness: (μ [Pa], λ [Pa], k_bend [J]) of each garment's material, (G, 3).
         grip: the gripping vertices' tangential anchors (`physics.grip`), or None.
+        stitches: closures tying vertex pairs (`physics.stitches`), or None.
     All tensors live on the device of the garment batch it was built from (`to` moves them).
     """
 
@@ -49,6 +51,7 @@ class Cloth:
     num_garments: int
     stiffness: Tensor
     grip: Grip | None = None
+    stitches: Stitches | None = None
 
     @staticmethod
     def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
@@ -109,7 +112,14 @@ class Cloth:
                    for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)}
         if self.grip is not None:
             changes["grip"] = self.grip.to(dtype, device=device)
+        if self.stitches is not None:
+            changes["stitches"] = self.stitches.to(dtype, device=device)
         return replace(self, **changes)
+
+    def with_terms_of(self, other: Cloth) -> Cloth:
+        """This cloth with `other`'s grip and stitches (in this cloth's dtype and device)."""
+        return replace(self, grip=None if other.grip is None else other.grip.to(self.dtype, device=self.device),
+                       stitches=None if other.stitches is None else other.stitches.to(self.dtype, device=self.device))
 
     def sum_per_garment(self, values: Tensor, owner: Tensor) -> Tensor:
         """Sum per-element values (..., N) into per-garment totals (..., G) using `owner` (N,)."""

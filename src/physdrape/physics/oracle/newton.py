@@ -39,6 +39,7 @@ from physdrape.physics.oracle.linalg import (
     silenced,
 )
 from physdrape.physics.oracle.results import IterationRecord, OracleResult
+from physdrape.physics.stitches import stitch_pair_blocks
 
 
 class ContactMode(str, enum.Enum):
@@ -76,6 +77,24 @@ class _ContactState:
     energy: Tensor
     grad: Tensor
     contact: Tensor
+
+
+def _pair_hessian(x: Tensor, cloth: Cloth, hess_c):
+    """The Hessian terms that couple vertices outside faces and hinges, as one sparse (3V, 3V)
+    matrix: the IPC barrier's `hess_c` and the stitches' exact (PSD) blocks; None without either."""
+    if cloth.stitches is None:
+        return hess_c
+    h = stitch_pair_blocks(x, cloth.stitches).numpy()  # (S, 3, 3)
+    i, j = cloth.stitches.pairs[:, 0].numpy(), cloth.stitches.pairs[:, 1].numpy()
+    axis = np.arange(3)
+    rows, cols, vals = [], [], []
+    for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+        rows.append((3 * a[:, None, None] + axis[None, :, None]).repeat(3, 2).reshape(-1))
+        cols.append((3 * b[:, None, None] + axis[None, None, :]).repeat(3, 1).reshape(-1))
+        vals.append(sign * h.reshape(-1))
+    n = 3 * cloth.num_verts
+    stitched = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsc()
+    return stitched if hess_c is None else hess_c + stitched
 
 
 class _Newton:
@@ -196,10 +215,11 @@ class _Newton:
             t1 = time.perf_counter()
             data = self.asm.assemble(hs.numpy(), hb.numpy(), hv.numpy())
             diag_mean = float(np.mean(data[self.asm.diag_pos]))
-            if hess_c is not None:
-                if project and self.try_exact:  # the exact barrier Hessian was not PD: ipctk's projected one
-                    hess_c = self.ipc.grad_hess(x.numpy(), project=True)[1]
-                lower = (self.asm.lower_matrix(data) + sp.tril(hess_c)).tocsc()
+            if hess_c is not None and project and self.try_exact:  # the exact barrier Hessian was not PD
+                hess_c = self.ipc.grad_hess(x.numpy(), project=True)[1]  # ipctk's projected one
+            extra = _pair_hessian(x, cloth, hess_c)
+            if extra is not None:
+                lower = (self.asm.lower_matrix(data) + sp.tril(extra)).tocsc()
                 lower.sort_indices()
                 diag_pos = _diagonal_positions(lower)
             else:
