@@ -27,12 +27,14 @@ from torch import Tensor
 from physdrape.body.model import BodyState
 from physdrape.body.skinning_transfer import SkinningTransfer
 from physdrape.garments.closures import panel_overlaps
+from physdrape.garments import layering
 from physdrape.garments.pieces import garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
+from physdrape.physics.layers import DEFAULT_LAYER_GAP, DEFAULT_LAYER_STIFFNESS, LayerOrder
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
@@ -89,7 +91,8 @@ class Job:
     the garment's rest shape on this body in its rest pose (a garment sized to fit,
     `garments.sizing`) or None for the template's; `grip` the grip stiffness κ [N/m³] of its
     waistband (`physics.grip`; 0: none); `stitches` (K, 2) template vertex pairs tied by closures
-    (`physics.stitches`, rest distance = on the rest shape) or None."""
+    (`physics.stitches`, rest distance = on the rest shape) or None; `layers` whether its pieces
+    keep their layer order (`physics.layers`)."""
 
     template: Template
     body: int
@@ -98,6 +101,7 @@ class Job:
     rest: np.ndarray | None = None
     grip: float = 0.0
     stitches: np.ndarray | None = None
+    layers: bool = False
 
 
 def select(state: BodyState, index: int) -> BodyState:
@@ -129,6 +133,7 @@ class DrapePipeline:
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
         self._closures: dict[str, np.ndarray] = {}
+        self._layer_pairs: dict[str, np.ndarray] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
@@ -183,6 +188,9 @@ class DrapePipeline:
         stitches = self._stitches(jobs, batch)
         if stitches is not None:
             cloth = replace(cloth, stitches=stitches)
+        layers = self._layers(jobs, batch, x_init, bodies)
+        if layers is not None:
+            cloth = replace(cloth, layers=layers)
         return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
 
     def grip_band(self, template: Template) -> np.ndarray:
@@ -216,6 +224,34 @@ class DrapePipeline:
                                   stiffness=torch.full((len(pairs),), DEFAULT_STITCH_STIFFNESS, dtype=batch.dtype,
                                                        device=batch.device)))
         return Stitches.cat(parts) if parts else None
+
+    def layer_pairs(self, template: Template) -> np.ndarray:
+        """[outer, inner] vertex pairs where the template's pieces overlap on the canonical body
+        (`garments.layering.layer_pairs`), (P, 2) int64 (computed once)."""
+        if template.key not in self._layer_pairs:
+            piece = garment_parts(template.verts, template.faces).piece
+            body_verts = self.body.canonical_verts(dtype=torch.float64).numpy()
+            self._layer_pairs[template.key] = layering.layer_pairs(template.verts, piece, body_verts,
+                                                                   np.asarray(self.body.faces, np.int64))
+        return self._layer_pairs[template.key]
+
+    def _layers(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> LayerOrder | None:
+        """The batch's layer order: each layered job's pairs, the body normal at the inner vertex
+        at X_init, gap `DEFAULT_LAYER_GAP`, stiffness `DEFAULT_LAYER_STIFFNESS`; None when none."""
+        pairs = [torch.as_tensor(self.layer_pairs(job.template), device=batch.device) + batch.vert_offsets[k]
+                 for k, job in enumerate(jobs) if job.layers]
+        pairs = [p for p in pairs if len(p)]
+        if not pairs:
+            return None
+        pairs = torch.cat(pairs)
+        body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=batch.device)
+        inner = pairs[:, 1]
+        with torch.no_grad():
+            normal = bodies.query(x_init[inner].to(bodies.verts.dtype),
+                                  body_index=body_of_job[batch.vert_garment[inner]]).normal
+        full = torch.ones(len(pairs), dtype=x_init.dtype, device=batch.device)
+        return LayerOrder(pairs=pairs, normal=normal.to(x_init.dtype), gap=DEFAULT_LAYER_GAP * full,
+                          stiffness=DEFAULT_LAYER_STIFFNESS * full)
 
     def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
         """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to

@@ -229,7 +229,7 @@ class Draper:
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
               refine_iters: int = 30, refine_time_s: float = 60.0, units: str = "m",
               allow_detached: bool = False, sizing: str | None = None,
-              grip: float | None = None, closures=None) -> list[DrapeResult]:
+              grip: float | None = None, closures=None, layers: str | None = None) -> list[DrapeResult]:
         """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
@@ -266,6 +266,9 @@ class Draper:
                 canonical body, `garments.closures`), "off", or the stitched vertex pairs of the
                 template, (K, 2) indices (an .mhclo template is remeshed: its own indices); None:
                 "auto".
+            layers: "auto" (None): a multi-piece garment's pieces keep the order they have where
+                they overlap on the canonical body, the outer outside the inner (`physics.layers`);
+                "off".
 
         Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
 
@@ -283,7 +286,7 @@ class Draper:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         steps = self.steps if steps is None else steps
         templates = [self.garment(g, units=units) for g in g_specs]
-        wear = Wear.check(sizing=sizing, grip=grip, closures=closures, templates=templates)
+        wear = Wear.check(sizing=sizing, grip=grip, closures=closures, layers=layers, templates=templates)
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
             body_poses = [BodyPose(bp.rig, bp.pose, bp.label, None, bp.sequence) for bp in body_poses]

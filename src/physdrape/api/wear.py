@@ -20,14 +20,16 @@ from physdrape.pipeline import DrapePipeline, Job, Template
 @dataclass(frozen=True)
 class Wear:
     """The checked wear options of one call (see `Draper.drape`): sizing None / "fit" / "fixed",
-    grip κ [N/m³] (0: none), closures "auto" / "off" / (K, 2) template vertex pairs."""
+    grip κ [N/m³] (0: none), closures "auto" / "off" / (K, 2) template vertex pairs, layers
+    "auto" / "off"."""
 
     sizing: str | None
     grip: float
     closures: str | np.ndarray
+    layers: str = "auto"
 
     @staticmethod
-    def check(*, sizing, grip, closures, templates: list[Template]) -> Wear:
+    def check(*, sizing, grip, closures, layers, templates: list[Template]) -> Wear:
         """The options of a call, refused with a DrapeError that names the fix."""
         if sizing is not None and sizing not in {s.value for s in Sizing}:
             raise DrapeError(f"sizing must be one of {', '.join(s.value for s in Sizing)} or None (the garment's "
@@ -36,8 +38,11 @@ class Wear:
                                      and math.isfinite(grip) and grip >= 0):
             raise DrapeError(f"grip must be a stiffness κ ≥ 0 [N/m³] (0: no grip) or None (the default "
                              f"{DEFAULT_GRIP_STIFFNESS:g}), got {grip!r}")
+        if layers is not None and layers not in ("auto", "off"):
+            raise DrapeError(f"layers must be 'auto' (the pieces keep the order they have on the canonical body), "
+                             f"'off' or None ('auto'), got {layers!r}")
         return Wear(sizing=sizing, grip=DEFAULT_GRIP_STIFFNESS if grip is None else float(grip),
-                    closures=_check_closures(closures, templates))
+                    closures=_check_closures(closures, templates), layers=layers or "auto")
 
 
 def _check_closures(closures, templates: list[Template]):
@@ -82,7 +87,7 @@ class Wearing:
         else:
             stitches = wear.closures
         return Job(template, body, material, x_init, self.rest(template, wear.sizing, state, body, shape, pipeline),
-                   wear.grip, stitches)
+                   wear.grip, stitches, wear.layers == "auto")
 
     def rest(self, template: Template, sizing: str | None, state, index: int, shape: Tensor,
              pipeline: DrapePipeline) -> np.ndarray | None:

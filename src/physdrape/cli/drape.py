@@ -263,7 +263,7 @@ def cmd_drape(args: argparse.Namespace) -> int:
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender, device=process_device(args.device))
     common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached, "sizing": args.sizing,
-              "grip": args.grip, "closures": args.closures}
+              "grip": args.grip, "closures": args.closures, "layers": args.layers}
     what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
     with slow_phase(what):
         results = _drape_noting_warnings(
@@ -352,6 +352,8 @@ def add_parser(sub) -> None:
     g.add_argument("--closures", choices=("auto", "off"), default="auto", help="tie a garment's overlapping panels "
                    "(button and wrap fronts, layered collars) with stitches where they overlap on the canonical body "
                    "(default auto)")
+    g.add_argument("--layers", choices=("auto", "off"), default="auto", help="keep a multi-piece garment's pieces "
+                   "in the order they overlap on the canonical body, the outer outside the inner (default auto)")
     b = drape.add_argument_group("body")
     b.add_argument("--shape", metavar="NAME=V,...", help="Anny phenotypes in [0, 1] (gender, age, muscle, weight, "
                    "height, proportions; missing ones 0.5), e.g. gender=0.2,weight=0.8")

@@ -14,6 +14,7 @@ from torch import Tensor
 
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.physics.grip import Grip
+from physdrape.physics.layers import LayerOrder
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
 from physdrape.physics.stitches import Stitches
 
@@ -33,6 +34,7 @@ class Cloth:
         stiffness: (μ [Pa], λ [Pa], k_bend [J]) of each garment's material, (G, 3).
         grip: the gripping vertices' tangential anchors (`physics.grip`), or None.
         stitches: closures tying vertex pairs (`physics.stitches`), or None.
+        layers: outer-over-inner pairs of a multi-piece garment (`physics.layers`), or None.
     All tensors live on the device of the garment batch it was built from (`to` moves them).
     """
 
@@ -52,6 +54,7 @@ class Cloth:
     stiffness: Tensor
     grip: Grip | None = None
     stitches: Stitches | None = None
+    layers: LayerOrder | None = None
 
     @staticmethod
     def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
@@ -114,12 +117,14 @@ class Cloth:
             changes["grip"] = self.grip.to(dtype, device=device)
         if self.stitches is not None:
             changes["stitches"] = self.stitches.to(dtype, device=device)
+        if self.layers is not None:
+            changes["layers"] = self.layers.to(dtype, device=device)
         return replace(self, **changes)
 
     def with_terms_of(self, other: Cloth) -> Cloth:
-        """This cloth with `other`'s grip and stitches (in this cloth's dtype and device)."""
-        return replace(self, grip=None if other.grip is None else other.grip.to(self.dtype, device=self.device),
-                       stitches=None if other.stitches is None else other.stitches.to(self.dtype, device=self.device))
+        """This cloth with `other`'s grip, stitches and layer order (in this cloth's dtype and device)."""
+        return replace(self, **{name: None if (term := getattr(other, name)) is None
+                                else term.to(self.dtype, device=self.device) for name in ("grip", "stitches", "layers")})
 
     def sum_per_garment(self, values: Tensor, owner: Tensor) -> Tensor:
         """Sum per-element values (..., N) into per-garment totals (..., G) using `owner` (N,)."""

@@ -28,6 +28,7 @@ from physdrape.physics.contact import (
 from physdrape.physics.forces import energy_terms, internal_forces
 from physdrape.physics.grip import grip_blocks
 from physdrape.physics.hessians import bend_gauss_newton_hessian, bend_hessian, strain_hessian
+from physdrape.physics.layers import layer_pair_blocks
 from physdrape.physics.oracle.ipc import DEFAULT_BARRIER_STIFFNESS, DEFAULT_DHAT, _IPCContact
 from physdrape.physics.oracle.linalg import (
     LinearSolver,
@@ -81,20 +82,25 @@ class _ContactState:
 
 def _pair_hessian(x: Tensor, cloth: Cloth, hess_c):
     """The Hessian terms that couple vertices outside faces and hinges, as one sparse (3V, 3V)
-    matrix: the IPC barrier's `hess_c` and the stitches' exact (PSD) blocks; None without either."""
-    if cloth.stitches is None:
-        return hess_c
-    h = stitch_pair_blocks(x, cloth.stitches).numpy()  # (S, 3, 3)
-    i, j = cloth.stitches.pairs[:, 0].numpy(), cloth.stitches.pairs[:, 1].numpy()
-    axis = np.arange(3)
-    rows, cols, vals = [], [], []
-    for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
-        rows.append((3 * a[:, None, None] + axis[None, :, None]).repeat(3, 2).reshape(-1))
-        cols.append((3 * b[:, None, None] + axis[None, None, :]).repeat(3, 1).reshape(-1))
-        vals.append(sign * h.reshape(-1))
-    n = 3 * cloth.num_verts
-    stitched = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsc()
-    return stitched if hess_c is None else hess_c + stitched
+    matrix: the IPC barrier's `hess_c` and the exact (PSD) pair blocks [[H, −H], [−H, H]] of the
+    stitches and the layer order; None without any."""
+    out = hess_c
+    for pairs, blocks in ((cloth.stitches, stitch_pair_blocks), (cloth.layers, layer_pair_blocks)):
+        if pairs is None:
+            continue
+        h = blocks(x, pairs).numpy()  # (P, 3, 3)
+        i, j = pairs.pairs[:, 0].numpy(), pairs.pairs[:, 1].numpy()
+        axis = np.arange(3)
+        rows, cols, vals = [], [], []
+        for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+            rows.append((3 * a[:, None, None] + axis[None, :, None]).repeat(3, 2).reshape(-1))
+            cols.append((3 * b[:, None, None] + axis[None, None, :]).repeat(3, 1).reshape(-1))
+            vals.append(sign * h.reshape(-1))
+        n = 3 * cloth.num_verts
+        matrix = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(n, n)).tocsc()
+        out = matrix if out is None else out + matrix
+    return out
 
 
 class _Newton:
