@@ -177,9 +177,9 @@ def markdown(record: dict) -> str:
     lines += ["", "Definitions:", ""] + [f"- **{k}**: {v}" for k, v in DEFINITIONS.items()] + [""]
     lines += ["## Summary per variant", "",
               "| variant | drape kwargs | waist drop mean [cm] | waist drop max [cm] | hem rise max [cm] | band > canonical "
-              "+ 0.5 cm | band > X_init + 0.5 cm | front gap mean [mm] | front gap max [mm] | B2G max [%] | new piece "
-              "crossings | wall [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "+ 0.5 cm | band > X_init + 0.5 cm | front gap mean [mm] | front gap max [mm] | B2G max [%] | piece crossings "
+              "X_init → drape (sum) | new piece crossings (sum) | wall [s] |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for v in record["variants"]:
         rows = v["rows"]
 
@@ -193,7 +193,8 @@ def markdown(record: dict) -> str:
                      f"{over_init} / {len(rows)} | "
                      f"{fmt(np.mean(col('front_gap_mm')) if col('front_gap_mm') else None, 1)} | "
                      f"{fmt(max(col('front_gap_max_mm')) if col('front_gap_max_mm') else None, 1)} | "
-                     f"{fmt(max(col('b2g_percent')))} | {sum(col('piece_x_new'))} | {fmt(v['wall_s'], 0)} |")
+                     f"{fmt(max(col('b2g_percent')))} | {sum(col('piece_x_init'))} → {sum(col('piece_x'))} | "
+                     f"{sum(col('piece_x_new'))} | {fmt(v['wall_s'], 0)} |")
     for v in record["variants"]:
         lines += ["", f"## {v['name']}", "",
                   "| suit | body | waist drop [cm] | top drop [cm] | hem rise [cm] | band [cm] (init, canonical) | "

@@ -54,3 +54,15 @@ def test_draper_layers_keep_the_pieces_apart(draper):
     assert crossings(layered) < crossings(free), (crossings(layered), crossings(free))
     with pytest.raises(DrapeError, match="layers must be 'auto'"):
         draper.drape(str(SUIT), layers="outside")
+
+
+@needs_suit
+def test_mhclo_template_pieces_do_not_cross(draper):
+    """The pieces of a MakeHuman suit refit crossing each other; its template is untangled."""
+    from physdrape.garments import load_mhclo
+    from physdrape.garments.intersections import self_intersecting_faces
+
+    raw = load_mhclo(SUIT)
+    assert len(self_intersecting_faces(raw.verts, raw.faces)) > 0  # else this test proves nothing
+    t = draper.garment(str(SUIT))
+    assert len(self_intersecting_faces(t.verts, t.faces)) == 0

@@ -107,7 +107,7 @@ def _template_from_text(text: str, *, smpl: bool, units: str) -> Template:
             from physdrape.garments import load_mhclo
             from physdrape.garments.sizing import MhcloSizer
 
-            g = load_mhclo(path)
+            g = load_mhclo(path, untangle=True)  # its pieces refit crossing each other: separated
             t = template_from_mesh(g.name, *_mesh(g))
             return replace(t, sizer=MhcloSizer.for_file(path, t.verts, t.faces))
         elif suffix in (".obj", ".ply"):

@@ -23,7 +23,7 @@ from physdrape.geometry.topology import boundary_edges, undirected_edges
 __all__ = ["panel_overlaps"]
 
 
-def panel_overlaps(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray, *, radius: float = 8e-3,
+def panel_overlaps(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray, *, radius: float = 12e-3,
                    min_hops: int = 6, exclude: np.ndarray | None = None) -> np.ndarray:
     """Vertex pairs where a template's panels overlap (module docstring).
 

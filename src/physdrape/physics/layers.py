@@ -25,8 +25,8 @@ __all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "LayerOrder", "layer_
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
-#: Least normal separation δ kept between the layers [m] (about four fabric thicknesses).
-DEFAULT_LAYER_GAP = 2e-3
+#: Least normal separation δ kept between the layers [m] (fabric and the air between layers).
+DEFAULT_LAYER_GAP = 4e-3
 
 
 @dataclass(frozen=True)
