@@ -29,10 +29,16 @@ from torch import Tensor
 
 from physdrape.body.model import BodyState
 from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.garments.closures import panel_overlaps
+from physdrape.garments import layering
+from physdrape.garments.pieces import garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
+from physdrape.physics.grip import Grip
+from physdrape.physics.layers import DEFAULT_LAYER_GAP, DEFAULT_LAYER_STIFFNESS, LayerOrder
+from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
 #: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
@@ -59,12 +65,15 @@ class Template:
         verts: rest positions [m], shape (V, 3) float64.
         faces: triangles, shape (F, 3) int64.
         key: a digest of verts and faces: equal meshes share cached transfers.
+        sizer: what gives the garment its rest shape on another body when it is sized to fit
+            (`garments.sizing.MhcloSizer` for an .mhclo garment), or None.
     """
 
     name: str
     verts: np.ndarray
     faces: np.ndarray
     key: str
+    sizer: object | None = None
 
     @staticmethod
     def from_mesh(verts, faces, *, name: str = "garment") -> Template:
@@ -114,12 +123,21 @@ class PosedBodies:
 @dataclass(frozen=True)
 class Job:
     """One drape: `template` on body `body` of the posed batch, in `material`; `x_init` [m] (V, 3)
-    a start of its own (a warm-started frame) or None for the skinned X_init."""
+    a start of its own (a warm-started frame) or None for the skinned X_init; `rest` [m] (V, 3)
+    the garment's rest shape on this body in its rest pose (a garment sized to fit,
+    `garments.sizing`) or None for the template's; `grip` the grip stiffness κ [N/m³] of its
+    waistband (`physics.grip`; 0: none); `stitches` (K, 2) template vertex pairs tied by closures
+    (`physics.stitches`, rest distance = on the rest shape) or None; `layers` whether its pieces
+    keep their layer order (`physics.layers`)."""
 
     template: Template
     body: int
     material: Material
     x_init: Tensor | None = None
+    rest: np.ndarray | None = None
+    grip: float = 0.0
+    stitches: np.ndarray | None = None
+    layers: bool = False
 
 
 def select(state: BodyState, index: int) -> BodyState:
@@ -149,6 +167,9 @@ class DrapePipeline:
         self.max_stretch = max_stretch
         self._transfers: dict[str, SkinningTransfer] = {}
         self._garments: dict[str, Garment] = {}
+        self._bands: dict[str, np.ndarray] = {}
+        self._closures: dict[str, np.ndarray] = {}
+        self._layer_pairs: dict[str, np.ndarray] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
@@ -160,18 +181,31 @@ class DrapePipeline:
             self._transfers[template.key] = transfer
         return self._transfers[template.key]
 
-    def garment(self, template: Template) -> Garment:
-        """The template's rest-state quantities in the pipeline's dtype, on its device (computed once)."""
+    def garment(self, template: Template, rest: np.ndarray | None = None) -> Garment:
+        """The template's rest-state quantities in the pipeline's dtype, on its device (computed
+        once); with `rest` [m] (V, 3), those of that rest shape (computed each time)."""
+        if rest is not None:
+            return Garment.from_mesh(rest, template.faces, name=template.name, dtype=self.dtype).to(device=self.device)
         if template.key not in self._garments:
             self._garments[template.key] = Garment.from_mesh(template.verts, template.faces, name=template.name,
                                                              dtype=self.dtype).to(device=self.device)
         return self._garments[template.key]
 
-    def x_init(self, template: Template, state: BodyState | PosedBodies, index: int = 0) -> Tensor:
-        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype."""
+    def x_init(self, template: Template, state: BodyState | PosedBodies, index: int = 0,
+               rest: np.ndarray | None = None) -> Tensor:
+        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype; with
+        `rest` [m] (V, 3), that rest shape skinned instead of the template's plus ΔX_shape."""
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         with torch.no_grad():
-            return self.transfer(template).apply(select(posed.state, index), surface=posed.single(index, self.dtype))[0]
+            body = select(posed.state, index)
+            rest_t = None if rest is None else torch.as_tensor(rest, dtype=body.rest_verts.dtype)
+            return self.transfer(template).apply(body, rest_verts=rest_t, surface=posed.single(index, self.dtype))[0]
+
+    def fitted_rest(self, template: Template, state: BodyState, index: int = 0) -> np.ndarray:
+        """The skinning transfer's shape part X_temp + ΔX_shape [m] (V, 3) float64 on body `index`
+        of `state`: the rest shape of a mesh garment sized to fit (`garments.sizing`)."""
+        with torch.no_grad():
+            return self.transfer(template).shaped_rest(select(state, index))[0].to(torch.float64).cpu().numpy()
 
     def build(self, jobs: Sequence[Job], state: BodyState | PosedBodies) -> DrapeInput:
         """The model's input for `jobs` on the posed bodies of `state` (one job per garment), on the
@@ -180,10 +214,99 @@ class DrapePipeline:
             raise ValueError("no jobs to drape")
         device = self.device
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
-        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body))
+        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body, job.rest))
                   .to(device=device, dtype=self.dtype) for job in jobs]
-        batch = GarmentBatch.pack([self.garment(job.template) for job in jobs])
+        batch = GarmentBatch.pack([self.garment(job.template, job.rest) for job in jobs])
         cloth = Cloth.build(batch, [job.material for job in jobs])
         bodies = posed.surface(self.dtype, device)
         body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)
-        return DrapeInput(batch, cloth, torch.cat(x_init), bodies, body_of_job[batch.vert_garment])
+        x_init = torch.cat(x_init)
+        grip = self._grip(jobs, batch, x_init, bodies)
+        if grip is not None:
+            cloth = replace(cloth, grip=grip)
+        stitches = self._stitches(jobs, batch)
+        if stitches is not None:
+            cloth = replace(cloth, stitches=stitches)
+        layers = self._layers(jobs, batch, x_init, bodies)
+        if layers is not None:
+            cloth = replace(cloth, layers=layers)
+        return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
+
+    def grip_band(self, template: Template) -> np.ndarray:
+        """The template's gripping vertices, its waistband's strip (`garments.pieces.waistband_band`),
+        (K,) int64 (computed once)."""
+        if template.key not in self._bands:
+            parts = garment_parts(template.verts, template.faces)
+            self._bands[template.key] = waistband_band(template.verts, parts)
+        return self._bands[template.key]
+
+    def closure_pairs(self, template: Template) -> np.ndarray:
+        """Where the template's panels overlap on the canonical body, the trousers' overlap with a
+        top left out (`garments.closures.panel_overlaps`): the pairs closures tie, (K, 2) int64
+        (computed once)."""
+        if template.key not in self._closures:
+            parts = garment_parts(template.verts, template.faces)
+            exclude = None if parts.lower is None else parts.piece == parts.lower
+            self._closures[template.key] = panel_overlaps(template.verts, template.faces, parts.piece, exclude=exclude)
+        return self._closures[template.key]
+
+    def _stitches(self, jobs: Sequence[Job], batch: GarmentBatch) -> Stitches | None:
+        """The batch's stitches: each job's pairs, rest distance on its rest shape, stiffness
+        `DEFAULT_STITCH_STIFFNESS`; None when no job has any."""
+        parts = []
+        for k, job in enumerate(jobs):
+            if job.stitches is None or len(job.stitches) == 0:
+                continue
+            pairs = torch.as_tensor(np.asarray(job.stitches, np.int64), device=batch.device)
+            rest = batch.rest[batch.vert_offsets[k] + pairs]
+            parts.append(Stitches(pairs=pairs + batch.vert_offsets[k], rest=(rest[:, 0] - rest[:, 1]).norm(dim=-1),
+                                  stiffness=torch.full((len(pairs),), DEFAULT_STITCH_STIFFNESS, dtype=batch.dtype,
+                                                       device=batch.device)))
+        return Stitches.cat(parts) if parts else None
+
+    def layer_pairs(self, template: Template) -> np.ndarray:
+        """[outer, inner] vertex pairs where the template's pieces overlap on the canonical body
+        (`garments.layering.layer_pairs`), (P, 2) int64 (computed once)."""
+        if template.key not in self._layer_pairs:
+            piece = garment_parts(template.verts, template.faces).piece
+            body_verts = self.body.canonical_verts(dtype=torch.float64).numpy()
+            self._layer_pairs[template.key] = layering.layer_pairs(template.verts, piece, body_verts,
+                                                                   np.asarray(self.body.faces, np.int64))
+        return self._layer_pairs[template.key]
+
+    def _layers(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> LayerOrder | None:
+        """The batch's layer order: each layered job's pairs, the body normal at the inner vertex
+        at X_init, gap `DEFAULT_LAYER_GAP`, stiffness `DEFAULT_LAYER_STIFFNESS`; None when none."""
+        pairs = [torch.as_tensor(self.layer_pairs(job.template), device=batch.device) + batch.vert_offsets[k]
+                 for k, job in enumerate(jobs) if job.layers]
+        pairs = [p for p in pairs if len(p)]
+        if not pairs:
+            return None
+        pairs = torch.cat(pairs)
+        body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=batch.device)
+        inner = pairs[:, 1]
+        with torch.no_grad():
+            normal = bodies.query(x_init[inner].to(bodies.verts.dtype),
+                                  body_index=body_of_job[batch.vert_garment[inner]]).normal
+        full = torch.ones(len(pairs), dtype=x_init.dtype, device=batch.device)
+        return LayerOrder(pairs=pairs, normal=normal.to(x_init.dtype), gap=DEFAULT_LAYER_GAP * full,
+                          stiffness=DEFAULT_LAYER_STIFFNESS * full)
+
+    def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
+        """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to
+        the body there, k_i = κ · (vertex area); None when no job grips."""
+        index = [torch.as_tensor(self.grip_band(job.template), device=batch.device) + batch.vert_offsets[k]
+                 for k, job in enumerate(jobs) if job.grip > 0]
+        if not any(len(i) for i in index):
+            return None
+        kappa = torch.cat([torch.full((len(self.grip_band(job.template)),), float(job.grip), dtype=x_init.dtype,
+                                      device=batch.device) for job in jobs if job.grip > 0])
+        index = torch.cat(index)
+        area = torch.zeros(batch.num_verts, dtype=x_init.dtype, device=batch.device).index_add_(
+            0, batch.faces.reshape(-1), (batch.rest_area.to(x_init.dtype) / 3.0).repeat_interleave(3))
+        body_of_vertex = torch.tensor([job.body for job in jobs], dtype=torch.int64,
+                                      device=batch.device)[batch.vert_garment]
+        with torch.no_grad():
+            normal = bodies.query(x_init[index].to(bodies.verts.dtype), body_index=body_of_vertex[index]).normal
+        return Grip(index=index, anchor=x_init[index].detach().clone(), normal=normal.to(x_init.dtype),
+                    stiffness=kappa * area[index])

@@ -27,6 +27,7 @@ from physdrape import checkpoint as ckpt
 from physdrape.api import placement, sequences, specs
 from physdrape.api.specs import BodyPose
 from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
+from physdrape.api.wear import Wear, Wearing
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
@@ -37,7 +38,6 @@ from physdrape.pipeline import (
     DEFAULT_DTYPE,
     POSE_DTYPE,
     DrapePipeline,
-    Job,
     PosedBodies,
     Template,
     select,
@@ -136,6 +136,7 @@ class Draper:
             self._bodies[body.rig] = body
         #: the SMPL body when this Draper drapes on SMPL (then Anny is never loaded), else None
         self.smpl = self._bodies.get("smpl")
+        self._wearing = Wearing(by_binding=self.smpl is None)
         self._pipelines: dict[str, DrapePipeline] = {}
         self._templates: dict[tuple[str, str], Template] = {}
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
@@ -239,7 +240,8 @@ class Draper:
     def drape(self, garments, *, shape=None, pose=None, material=None, refine: bool = False,
               steps: int | None = None, keep_trace: bool = False, batch_size: int = 8, progress: bool = False,
               refine_iters: int = 30, refine_time_s: float = 60.0, units: str = "m",
-              allow_detached: bool = False) -> list[DrapeResult]:
+              allow_detached: bool = False, sizing: str | None = None,
+              grip: float | None = None, closures=None, layers: str | None = None) -> list[DrapeResult]:
         """Drape garments onto a shaped, posed Anny body (or the Draper's SMPL body).
 
         Args:
@@ -262,6 +264,23 @@ class Draper:
                 generated garments and .mhclo are placed in metres already). Results are in metres.
             allow_detached: drape a garment that neither touches nor surrounds the canonical body
                 (warning with a `DrapeWarning`) instead of refusing it with a DrapeError.
+            sizing: the garments' rest shape on the body (`garments.sizing`): "fit" follows the
+                body's shape (an .mhclo through its MakeHuman binding, any other garment through
+                the skinning transfer's shape part), so a garment is worn where it was authored;
+                "fixed" keeps the template's (try-on: one size on every body). None: "fit" for
+                .mhclo garments, "fixed" for the others.
+            grip: the grip stiffness κ [N/m³] of a multi-piece garment's waistband (`physics.grip`:
+                its strip of fabric held tangentially where it was put on, as friction and elastic
+                hold a waistband); 0 turns it off; None: `DEFAULT_GRIP_STIFFNESS`. Garments
+                without a lower piece (tops, one-piece garments) have no waistband to grip.
+            closures: what ties a garment's overlapping panels (button and wrap fronts) with
+                stitches (`physics.stitches`): "auto" (where the template's panels overlap on the
+                canonical body, `garments.closures`), "off", or the stitched vertex pairs of the
+                template, (K, 2) indices (an .mhclo template is remeshed: its own indices); None:
+                "auto".
+            layers: "auto" (None): a multi-piece garment's pieces keep the order they have where
+                they overlap on the canonical body, the outer outside the inner (`physics.layers`);
+                "off".
 
         Jobs are the broadcast of garments × poses × materials (each list of length 1 or N).
 
@@ -279,6 +298,7 @@ class Draper:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         steps = self.steps if steps is None else steps
         templates = [self.garment(g, units=units) for g in g_specs]
+        wear = Wear.check(sizing=sizing, grip=grip, closures=closures, layers=layers, templates=templates)
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
             body_poses = [BodyPose(bp.rig, bp.pose, bp.label, None, bp.sequence) for bp in body_poses]
@@ -293,7 +313,7 @@ class Draper:
         self._check_attached(jobs, allow_detached)
         prev = sequences.predecessors([j.pose for j in jobs], [j.template.key for j in jobs])
         options = {"steps": steps, "refine": refine, "keep_trace": keep_trace, "refine_iters": refine_iters,
-                   "refine_time_s": refine_time_s}
+                   "refine_time_s": refine_time_s, "wear": wear}
         results: dict[int, DrapeResult] = {}
         carried: dict[int, _Warm] = {}  # the last drape of each running sequence
         bar = None
@@ -354,7 +374,8 @@ class Draper:
 
     @torch.no_grad()
     def _drape_batch(self, jobs: list[_Job], shape: Tensor, *, steps: int, refine: bool, keep_trace: bool,
-                     refine_iters: int, refine_time_s: float, warm: list[_Warm] | None = None,
+                     refine_iters: int, refine_time_s: float, wear: Wear,
+                     warm: list[_Warm] | None = None,
                      physics_only: bool = False) -> tuple[list[DrapeResult], list[_Warm | None]]:
         """Drape one batch of jobs on one rig. warm: per job the previous frame (None: X_init by
         skinning); physics_only: skip the network (solver steps with f̂ = 0 and the collision
@@ -380,7 +401,8 @@ class Draper:
             if warm is not None and warm[k] is not None:
                 x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
                                                 transforms, select(state, b))
-            pipeline_jobs.append(Job(job.template, b, job.material, x_init))
+            pipeline_jobs.append(self._wearing.job(job.template, b, job.material, x_init, wear, state,
+                                                   shapes[b:b + 1], pipeline))
             following.append(transforms)
         inp = pipeline.build(pipeline_jobs, posed)
         t2 = time.perf_counter()
@@ -392,6 +414,7 @@ class Draper:
         t3b = time.perf_counter()
         if refine:  # the oracle runs on the CPU (scipy's sparse factorisations), where the bodies are posed
             c64 = Cloth.build(inp.garments.to(torch.float64, device="cpu"), [job.material for job in jobs])
+            c64 = c64.with_terms_of(inp.cloth)  # the oracle minimises the same energy (grip, stitches)
             b64 = BodySurface(state.verts.to(device="cpu", dtype=torch.float64), state.faces)
             body_of_garment = torch.tensor([job.body for job in pipeline_jobs], device="cpu")
             res = relax(x.to(device="cpu", dtype=torch.float64), c64, b64, body_of_garment, max_iters=refine_iters,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -105,8 +105,11 @@ def _template_from_text(text: str, *, smpl: bool, units: str) -> Template:
         suffix = path.suffix.lower()
         if suffix == ".mhclo":
             from physdrape.garments import load_mhclo
+            from physdrape.garments.sizing import MhcloSizer
 
-            g = load_mhclo(path)
+            g = load_mhclo(path, untangle=True)  # its pieces refit crossing each other: separated
+            t = template_from_mesh(g.name, *_mesh(g))
+            return replace(t, sizer=MhcloSizer.for_file(path, t.verts, t.faces))
         elif suffix in (".obj", ".ply"):
             return _template_from_file(path, units)
         else:

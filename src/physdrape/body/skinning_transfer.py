@@ -293,7 +293,15 @@ class SkinningTransfer:
                                iterations=self.limit_sweeps, momentum=self.limit_momentum, **contact)
         return limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=LOCAL_STRETCH_BOUND)
 
-    def apply(self, body, garment_verts: Tensor | None = None, *, surface: BodySurface | None = None) -> Tensor:
+    def shaped_rest(self, body) -> Tensor:
+        """X_temp + dX_shape: the template moved with the body's shape, rest pose [m], shape
+        (B, V, 3) in the dtype of ``body.rest_verts`` (the rest shape of a garment sized to fit)."""
+        rest = body.rest_verts
+        canonical = self.canonical_verts.to(device=rest.device, dtype=rest.dtype)
+        return self.template_verts.to(device=rest.device, dtype=rest.dtype) + self._blend(rest - canonical)
+
+    def apply(self, body, garment_verts: Tensor | None = None, *, rest_verts: Tensor | None = None,
+              surface: BodySurface | None = None) -> Tensor:
         """X_init = LBS(X_temp + dX_shape, pose) on a batch of bodies (paper Eq. 5).
 
         Args:
@@ -301,6 +309,9 @@ class SkinningTransfer:
                 (B, Vb, 4, 4)) of the body model the weights were fitted on.
             garment_verts: garment in the canonical pose on the canonical body [m], shape (V, 3)
                 or (B, V, 3); default the fitted template.
+            rest_verts: the garment's own rest shape on these bodies in their rest pose [m],
+                (V, 3) or (B, V, 3) (a garment sized to fit): skinned instead of
+                X_temp + dX_shape, and the reference of the stretch limit.
             surface: the posed bodies of ``body`` as a `BodySurface` (any dtype: it is queried in
                 its own), if the caller holds one (else it is built here for the strain limiting's
                 contact).
@@ -330,6 +341,11 @@ class SkinningTransfer:
         batch, num_body = rest.shape[:2]
         blended = self._blend(torch.cat([rest - canonical, transforms[..., :3, :].reshape(batch, num_body, 12)], -1))
         x_rest = x_temp + blended[..., :3]
+        if rest_verts is not None:
+            if rest_verts.shape[-2:] != (self.num_verts, 3):
+                raise ValueError(f"rest_verts must have shape ({self.num_verts}, 3) or (B, {self.num_verts}, 3), "
+                                 f"got {tuple(rest_verts.shape)}")
+            x_rest = x_temp = rest_verts.to(device=device, dtype=dtype).expand_as(x_rest)
         affine = blended[..., 3:].reshape(batch, self.num_verts, 3, 4)
         x = torch.einsum("bvij,bvj->bvi", affine[..., :3], x_rest) + affine[..., 3]
         return self.limit_stretch(x, x_temp, body=_posed_surface(body, dtype) if surface is None else surface)

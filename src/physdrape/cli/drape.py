@@ -31,6 +31,7 @@ from physdrape.cli.common import (
     safe_name,
     staged_directory,
 )
+from physdrape.physics.grip import DEFAULT_GRIP_STIFFNESS
 from physdrape.progress import slow_phase
 
 DRAPE_EPILOG = """\
@@ -261,7 +262,8 @@ def cmd_drape(args: argparse.Namespace) -> int:
     # 2. drape (the API validates garments, units, placement, bodies, poses and the checkpoint)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender, device=process_device(args.device))
-    common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached}
+    common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached, "sizing": args.sizing,
+              "grip": args.grip, "closures": args.closures, "layers": args.layers}
     what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
     with slow_phase(what):
         results = _drape_noting_warnings(
@@ -341,6 +343,17 @@ def add_parser(sub) -> None:
                    "(default m); they are converted to metres, and so are the outputs")
     g.add_argument("--allow-detached", action="store_true", help="drape a garment that neither touches nor "
                    "surrounds the canonical body (a warning instead of an error)")
+    g.add_argument("--sizing", choices=("fit", "fixed"), default=None, help="the garment's rest shape on the body: "
+                   "fit = follows the body's shape (worn where it was authored), fixed = the template's (one size "
+                   "tried on); default fit for .mhclo, fixed for other garments")
+    g.add_argument("--grip", type=float, default=None, metavar="K", help="grip stiffness [N/m^3] of a multi-piece "
+                   "garment's waistband, held where it was put on as friction holds it (0: off; default "
+                   f"{DEFAULT_GRIP_STIFFNESS:g})")
+    g.add_argument("--closures", choices=("auto", "off"), default="auto", help="tie a garment's overlapping panels "
+                   "(button and wrap fronts, layered collars) with stitches where they overlap on the canonical body "
+                   "(default auto)")
+    g.add_argument("--layers", choices=("auto", "off"), default="auto", help="keep a multi-piece garment's pieces "
+                   "in the order they overlap on the canonical body, the outer outside the inner (default auto)")
     b = drape.add_argument_group("body")
     b.add_argument("--shape", metavar="NAME=V,...", help="Anny phenotypes in [0, 1] (gender, age, muscle, weight, "
                    "height, proportions; missing ones 0.5), e.g. gender=0.2,weight=0.8")

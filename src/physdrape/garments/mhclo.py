@@ -25,6 +25,7 @@ from physdrape.body.anny_body import get_anny_body
 from physdrape.garments.generator import GarmentTemplate
 from physdrape.garments.numpy_geometry import BodyDistance
 from physdrape.garments.remesh import remesh
+from physdrape.garments.untangle import untangle_garment
 from physdrape.geometry.mesh import MeshError, read_obj
 from physdrape.geometry.topology import undirected_edges, vertex_adjacency
 
@@ -144,6 +145,7 @@ def load_mhclo(
     hm08: np.ndarray | None = None,
     target_edge: float | None = 0.015,
     resolve_margin: float | None = 2e-3,
+    untangle: bool = False,
 ) -> GarmentTemplate:
     """Load a MakeHuman garment and refit it onto an Anny body.
 
@@ -156,6 +158,8 @@ def load_mhclo(
         resolve_margin: push vertices inside the body or closer than this [m] out to it
             (`resolve_body_penetration`); None leaves the raw refit. Tight suits refit raw
             have part of their area inside the body (MakeHuman hides the skin under them).
+        untangle: after that, separate the pieces' layers where they cross (a top refit through
+            trousers; `garments.untangle.untangle_garment`); needs `resolve_margin`.
 
     Returns:
         the garment (y-up metres, on that body).
@@ -183,6 +187,9 @@ def load_mhclo(
             g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin
         )
         g.meta["resolved_verts"] = int(moved)
+        if untangle:
+            g.verts, info = untangle_garment(g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin)
+            g.meta["untangled"] = info.as_dict()
     return g
 
 

@@ -19,7 +19,7 @@ from physdrape.physics.contact import (
     garment_energy,
     query_samples,
 )
-from physdrape.physics.forces import internal_energy, internal_forces
+from physdrape.physics.forces import extra_blocks, internal_energy, internal_forces
 from physdrape.physics.majorant import vertex_blocks
 
 
@@ -267,11 +267,14 @@ class _Relaxation:
 
     def contact_blocks(self, distance: Tensor | None) -> Tensor | None:
         """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) from the samples'
-        distances d, samples within `band` of their plane taken at depth ≥ ε; or None."""
+        distances d, samples within `band` of their plane taken at depth ≥ ε, plus the grip's and
+        the stitches' (`physics.forces.extra_blocks`); or None without any."""
+        extra = extra_blocks(self.cloth)
         if distance is None:
-            return None
+            return extra
         distance = distance.detach()
         if self.band > 0:  # depth ReLU(ε − min(d, 0)) = max(ReLU(ε − d), ε) within the band
             distance = torch.where(distance < self.band, distance.clamp_max(0.0), distance)
-        return contact_vertex_blocks(distance, self.planes[1], self.cloth.faces, stiffness=self.stiffness,
-                                     margin=self.margin)
+        blocks = contact_vertex_blocks(distance, self.planes[1], self.cloth.faces, stiffness=self.stiffness,
+                                       margin=self.margin)
+        return blocks if extra is None else blocks + extra.to(blocks.dtype)

@@ -13,7 +13,10 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.physics.grip import Grip
+from physdrape.physics.layers import LayerOrder
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
+from physdrape.physics.stitches import Stitches
 
 
 @dataclass(frozen=True)
@@ -29,6 +32,9 @@ class Cloth:
         mass: vertex masses (V,) [kg]; gravity: acceleration vector (G, 3) [m/s²] per garment;
         vert_garment, face_garment, hinge_garment: owning garment per element; num_garments: G.
         stiffness: (μ [Pa], λ [Pa], k_bend [J]) of each garment's material, (G, 3).
+        grip: the gripping vertices' tangential anchors (`physics.grip`), or None.
+        stitches: closures tying vertex pairs (`physics.stitches`), or None.
+        layers: outer-over-inner pairs of a multi-piece garment (`physics.layers`), or None.
     All tensors live on the device of the garment batch it was built from (`to` moves them).
     """
 
@@ -46,6 +52,9 @@ class Cloth:
     hinge_garment: Tensor
     num_garments: int
     stiffness: Tensor
+    grip: Grip | None = None
+    stitches: Stitches | None = None
+    layers: LayerOrder | None = None
 
     @staticmethod
     def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
@@ -104,7 +113,18 @@ class Cloth:
         `device` (None: kept)."""
         changes = {f.name: value.to(device=device, dtype=dtype if value.is_floating_point() else None)
                    for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)}
+        if self.grip is not None:
+            changes["grip"] = self.grip.to(dtype, device=device)
+        if self.stitches is not None:
+            changes["stitches"] = self.stitches.to(dtype, device=device)
+        if self.layers is not None:
+            changes["layers"] = self.layers.to(dtype, device=device)
         return replace(self, **changes)
+
+    def with_terms_of(self, other: Cloth) -> Cloth:
+        """This cloth with `other`'s grip, stitches and layer order (in this cloth's dtype and device)."""
+        return replace(self, **{name: None if (term := getattr(other, name)) is None
+                                else term.to(self.dtype, device=self.device) for name in ("grip", "stitches", "layers")})
 
     def sum_per_garment(self, values: Tensor, owner: Tensor) -> Tensor:
         """Sum per-element values (..., N) into per-garment totals (..., G) using `owner` (N,)."""

@@ -12,24 +12,30 @@ from physdrape.physics.forces import energy_terms
 
 def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, *, contact_stiffness: float,
                    margin: float) -> dict[str, Tensor]:
-    """Each energy term per garment [J] at positions x (ΣV, 3) [m]: {strain, bend, collision, gravity} → (G,).
+    """Each energy term per garment [J] at positions x (ΣV, 3) [m]: {strain, bend, collision, gravity}
+    (and grip, stitch and layer when the cloth has them: `physics.grip`, `physics.stitches`,
+    `physics.layers`) → (G,).
 
     body_index: body of each vertex (ΣV,). collision is the contact penalty of `physics.contact`
     (k_c = contact_stiffness [J/m³], ε = margin [m]) at the vertices and the face centroids, the
     oracle's term.
     """
     terms = energy_terms(x, cloth)
-    return {
+    out = {
         "strain": terms["strain"],
         "bend": terms["bend"],
         "collision": penalty_contact_energy(x, cloth, bodies, body_index, stiffness=contact_stiffness, margin=margin),
         "gravity": terms["gravity"],
     }
+    for extra in ("grip", "stitch", "layer"):
+        if extra in terms:
+            out[extra] = terms[extra]
+    return out
 
 
 def total_energy(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, *, contact_stiffness: float,
                  margin: float) -> Tensor:
-    """E_strain + E_bend + E_grav + E_contact per garment [J] (G,): the sum of `drape_energies`,
+    """E_strain + E_bend + E_grav + E_contact (+ E_grip + E_stitch + E_layer) per garment [J] (G,): the sum of `drape_energies`,
     the energy the oracle minimises."""
     return sum(drape_energies(x, cloth, bodies, body_index, contact_stiffness=contact_stiffness,
                               margin=margin).values())

@@ -26,7 +26,9 @@ from physdrape.physics.contact import (
     sample_index,
 )
 from physdrape.physics.forces import energy_terms, internal_forces
+from physdrape.physics.grip import grip_blocks
 from physdrape.physics.hessians import bend_gauss_newton_hessian, bend_hessian, strain_hessian
+from physdrape.physics.layers import layer_pair_blocks
 from physdrape.physics.oracle.ipc import DEFAULT_BARRIER_STIFFNESS, DEFAULT_DHAT, _IPCContact
 from physdrape.physics.oracle.linalg import (
     LinearSolver,
@@ -38,6 +40,7 @@ from physdrape.physics.oracle.linalg import (
     silenced,
 )
 from physdrape.physics.oracle.results import IterationRecord, OracleResult
+from physdrape.physics.stitches import stitch_pair_blocks
 
 
 class ContactMode(str, enum.Enum):
@@ -77,6 +80,29 @@ class _ContactState:
     contact: Tensor
 
 
+def _pair_hessian(x: Tensor, cloth: Cloth, hess_c):
+    """The Hessian terms that couple vertices outside faces and hinges, as one sparse (3V, 3V)
+    matrix: the IPC barrier's `hess_c` and the exact (PSD) pair blocks [[H, −H], [−H, H]] of the
+    stitches and the layer order; None without any."""
+    out = hess_c
+    for pairs, blocks in ((cloth.stitches, stitch_pair_blocks), (cloth.layers, layer_pair_blocks)):
+        if pairs is None:
+            continue
+        h = blocks(x, pairs).numpy()  # (P, 3, 3)
+        i, j = pairs.pairs[:, 0].numpy(), pairs.pairs[:, 1].numpy()
+        axis = np.arange(3)
+        rows, cols, vals = [], [], []
+        for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+            rows.append((3 * a[:, None, None] + axis[None, :, None]).repeat(3, 2).reshape(-1))
+            cols.append((3 * b[:, None, None] + axis[None, None, :]).repeat(3, 1).reshape(-1))
+            vals.append(sign * h.reshape(-1))
+        n = 3 * cloth.num_verts
+        matrix = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(n, n)).tocsc()
+        out = matrix if out is None else out + matrix
+    return out
+
+
 class _Newton:
     """One `relax` call (arguments as `relax`; cloth in float64, body_index per garment)."""
 
@@ -110,9 +136,10 @@ class _Newton:
 
     # ----------------------------------------------------------------------------- energies
     def total_energy(self, x: Tensor, contact_energy_g: Tensor) -> tuple[Tensor, dict]:
-        terms = energy_terms(x, self.cloth)
+        terms = energy_terms(x, self.cloth)  # strain, bend, gravity (and grip)
+        total = sum(terms.values()) + contact_energy_g
         terms["contact"] = contact_energy_g
-        return terms["strain"] + terms["bend"] + terms["gravity"] + contact_energy_g, terms
+        return total, terms
 
     def contact_state(self, x: Tensor) -> _ContactState:
         faces = self.cloth.faces
@@ -189,13 +216,16 @@ class _Newton:
                 hs = hs + hf
             else:
                 hv = torch.zeros(cloth.num_verts, 3, 3, dtype=dt)
+            if cloth.grip is not None:
+                hv = hv + grip_blocks(cloth.grip, cloth.num_verts, dtype=dt)
             t1 = time.perf_counter()
             data = self.asm.assemble(hs.numpy(), hb.numpy(), hv.numpy())
             diag_mean = float(np.mean(data[self.asm.diag_pos]))
-            if hess_c is not None:
-                if project and self.try_exact:  # the exact barrier Hessian was not PD: ipctk's projected one
-                    hess_c = self.ipc.grad_hess(x.numpy(), project=True)[1]
-                lower = (self.asm.lower_matrix(data) + sp.tril(hess_c)).tocsc()
+            if hess_c is not None and project and self.try_exact:  # the exact barrier Hessian was not PD
+                hess_c = self.ipc.grad_hess(x.numpy(), project=True)[1]  # ipctk's projected one
+            extra = _pair_hessian(x, cloth, hess_c)
+            if extra is not None:
+                lower = (self.asm.lower_matrix(data) + sp.tril(extra)).tocsc()
                 lower.sort_indices()
                 diag_pos = _diagonal_positions(lower)
             else:

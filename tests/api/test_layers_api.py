@@ -1,0 +1,68 @@
+"""Layer order of a multi-piece garment through the pipeline and the Draper."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from physdrape.api import DrapeError
+from physdrape.garments.pieces import garment_parts
+from physdrape.pipeline import Job
+
+SUIT = Path(__file__).resolve().parents[3] / "shared" / "data" / "makehuman_cc0" / "male_casualsuit04" / "male_casualsuit04.mhclo"
+needs_suit = pytest.mark.skipif(not SUIT.is_file(), reason="the CC0 MakeHuman suits are not available")
+
+
+@needs_suit
+def test_pipeline_layers_the_tee_over_the_trousers(draper):
+    pipeline = draper.pipeline("anny")
+    suit = draper.garment(str(SUIT))
+    parts = garment_parts(suit.verts, suit.faces)
+    pairs = pipeline.layer_pairs(suit)
+    assert len(pairs) > 50
+    assert np.all(parts.piece[pairs[:, 0]] != parts.lower) and np.all(parts.piece[pairs[:, 1]] == parts.lower)
+    body = draper.body("anny")
+    state = body(draper.shape({"weight": 0.8}), body.rest_pose(1, dtype=torch.float64))
+    material = draper.material(None)
+    inp = pipeline.build([Job(draper.garment("default"), 0, material, layers=True),
+                          Job(suit, 0, material, layers=True)], state)
+    layers = inp.cloth.layers
+    offset = int(inp.garments.vert_offsets[1])
+    np.testing.assert_array_equal(layers.pairs.numpy(), pairs + offset)  # the one-piece tee has none
+    torch.testing.assert_close(layers.normal.norm(dim=-1), torch.ones(len(pairs), dtype=layers.normal.dtype))
+    assert pipeline.build([Job(suit, 0, material)], state).cloth.layers is None
+
+
+@needs_suit
+def test_draper_layers_keep_the_pieces_apart(draper):
+    from physdrape.garments.intersections import self_intersecting_pairs
+
+    suit = draper.garment(str(SUIT))
+    piece = garment_parts(suit.verts, suit.faces).piece
+
+    def crossings(res):
+        pairs = self_intersecting_pairs(res.verts, suit.faces)
+        owner = piece[suit.faces[:, 0]]
+        return int((owner[pairs[:, 0]] != owner[pairs[:, 1]]).sum())
+
+    shape = {"weight": 0.9}
+    [layered] = draper.drape(str(SUIT), shape=shape, steps=8)
+    [free] = draper.drape(str(SUIT), shape=shape, steps=8, layers="off")
+    assert crossings(layered) < crossings(free), (crossings(layered), crossings(free))
+    with pytest.raises(DrapeError, match="layers must be 'auto'"):
+        draper.drape(str(SUIT), layers="outside")
+
+
+@needs_suit
+def test_mhclo_template_pieces_do_not_cross(draper):
+    """The pieces of a MakeHuman suit refit crossing each other; its template is untangled."""
+    from physdrape.garments import load_mhclo
+    from physdrape.garments.intersections import self_intersecting_faces
+
+    raw = load_mhclo(SUIT)
+    assert len(self_intersecting_faces(raw.verts, raw.faces)) > 0  # else this test proves nothing
+    t = draper.garment(str(SUIT))
+    assert len(self_intersecting_faces(t.verts, t.faces)) == 0

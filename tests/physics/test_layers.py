@@ -1,0 +1,115 @@
+"""The layer order (physics.layers): forces = −∇E (autograd and central differences, float64),
+exact PSD pair Hessian, one-sidedness, its place in the shared energy, and the oracle keeping an
+outer sheet outside an inner one."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+from physics_cases import deformed
+
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.proximity import BodySurface
+from physdrape.physics import Cloth, energy_terms, internal_energy, internal_forces, relax
+from physdrape.physics.layers import LayerOrder, layer_energy, layer_forces, layer_pair_blocks
+
+
+def make_layers(garment, x: torch.Tensor, seed: int = 0, count: int = 10, *, active: bool = True) -> LayerOrder:
+    gen = torch.Generator().manual_seed(seed)
+    pairs = torch.randperm(garment.num_verts, generator=gen)[:2 * count].reshape(count, 2)
+    normal = torch.randn(count, 3, generator=gen, dtype=torch.float64)
+    normal = normal / normal.norm(dim=-1, keepdim=True)
+    sep = ((x[pairs[:, 0]] - x[pairs[:, 1]]) * normal).sum(-1)
+    gap = sep + (0.01 if active else -0.01)
+    return LayerOrder(pairs=pairs, normal=normal, gap=gap,
+                      stiffness=100.0 + 100.0 * torch.rand(count, generator=gen, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("mesh", ["sheet", "tube"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_layer_force_equals_negative_gradient(mesh, seed, request):
+    garment = request.getfixturevalue(mesh)
+    x = deformed(garment, seed=seed)
+    layers = make_layers(garment, x, seed)
+    xg = x.clone().requires_grad_()
+    (grad,) = torch.autograd.grad(layer_energy(xg, layers).sum(), xg)
+    f = layer_forces(x, layers)
+    assert grad.abs().max() > 1e-3, "test point is stationary: the comparison would prove nothing"
+    torch.testing.assert_close(f, -grad, rtol=1e-12, atol=1e-14)
+    h = 1e-6
+    gen = torch.Generator().manual_seed(seed + 11)
+    for _ in range(5):
+        d = torch.randn(x.shape, generator=gen, dtype=x.dtype)
+        d /= d.norm()
+        fd = (layer_energy(x + h * d, layers).sum() - layer_energy(x - h * d, layers).sum()) / (2 * h)
+        assert abs(float(fd)) > 1e-7, "finite-difference signal is zero"
+        assert float(-(f * d).sum()) == pytest.approx(float(fd), rel=1e-7, abs=1e-12)
+
+
+def test_layer_hessian_is_exact_psd_and_one_sided(sheet):
+    x = deformed(sheet, seed=4)
+    layers = make_layers(sheet, x, 4, count=3)
+    full = torch.autograd.functional.hessian(lambda y: layer_energy(y, layers).sum(), x)
+    full = full.reshape(sheet.num_verts * 3, sheet.num_verts * 3)
+    assembled = torch.zeros_like(full)
+    for (o, i), h in zip(layers.pairs.tolist(), layer_pair_blocks(x, layers)):
+        for a, b, sign in ((o, o, 1), (i, i, 1), (o, i, -1), (i, o, -1)):
+            assembled[3 * a:3 * a + 3, 3 * b:3 * b + 3] += sign * h
+    assert full.abs().max() > 10.0
+    torch.testing.assert_close(assembled, full, rtol=1e-9, atol=1e-9)
+    assert float(torch.linalg.eigvalsh(layer_pair_blocks(x, layers)).min()) >= -1e-12
+    apart = make_layers(sheet, x, 4, count=3, active=False)  # already far enough apart: no term
+    assert float(layer_energy(x, apart).abs().max()) == 0.0
+    assert float(layer_forces(x, apart).abs().max()) == 0.0
+
+
+def test_layers_are_part_of_the_shared_energy(tube):
+    x = deformed(tube, seed=6)
+    layers = make_layers(tube, x, 6)
+    cloth = Cloth.build(tube)
+    layered = replace(cloth, layers=layers)
+    e = layer_energy(x, layers).sum()
+    assert float(e) > 1e-6
+    assert float(energy_terms(x, layered)["layer"]) == pytest.approx(float(e), rel=1e-12)
+    assert float(internal_energy(x, layered) - internal_energy(x, cloth)) == pytest.approx(float(e), rel=1e-9)
+    torch.testing.assert_close(internal_forces(x, layered) - internal_forces(x, cloth), layer_forces(x, layers))
+    assert layered.to(torch.float32).layers.normal.dtype == torch.float32
+    assert Cloth.build(tube).with_terms_of(layered).layers is not None
+
+
+def test_oracle_keeps_the_outer_sheet_outside():
+    """Two flat sheets, the outer authored 1 mm above the inner, started 3 mm below it (through it):
+    with the layer order the oracle puts the outer back outside; without it, it stays through."""
+    n = 6
+    g = torch.linspace(0.0, 0.05, n, dtype=torch.float64)
+    xx, zz = torch.meshgrid(g, g, indexing="ij")
+    grid = torch.stack([xx.reshape(-1), torch.zeros(n * n, dtype=torch.float64), zz.reshape(-1)], -1)
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            faces += [(a, b, d), (a, d, c)]
+    faces = torch.tensor(faces)
+    inner = Garment.from_mesh(grid, faces, dtype=torch.float64)
+    outer = Garment.from_mesh(grid + torch.tensor([0.0, 1e-3, 0.0], dtype=torch.float64), faces, dtype=torch.float64)
+    batch = GarmentBatch.pack([inner, outer])
+    cloth = replace(Cloth.build(batch), gravity=torch.zeros(2, 3, dtype=torch.float64))
+    pairs = torch.stack([torch.arange(n * n) + n * n, torch.arange(n * n)], 1)
+    up = torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64).expand(n * n, 3)
+    layers = LayerOrder(pairs=pairs, normal=up, gap=torch.full((n * n,), 1e-3, dtype=torch.float64),
+                        stiffness=torch.full((n * n,), 1000.0, dtype=torch.float64))
+    x = batch.rest.clone()
+    x[n * n:, 1] -= 4e-3  # the whole outer sheet through the inner one
+    verts = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.float64) * 0.01 + 5.0
+    bodies = BodySurface(verts, torch.tensor([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))  # far: no contact
+    body_index = torch.zeros(2, dtype=torch.int64)
+    free = relax(x, cloth, bodies, body_index, max_iters=20)
+    held = relax(x, replace(cloth, layers=layers), bodies, body_index, max_iters=20)
+    assert "layer" in held.energy_terms
+    def separation(r):
+        return r.x[n * n:, 1] - r.x[:n * n, 1]
+
+    assert float(separation(held).min()) > 0.9e-3
+    assert float(separation(free).max()) < -2e-3
