@@ -16,7 +16,7 @@ QUICKSTART = Path(__file__).resolve().parents[2] / "configs" / "quickstart.yaml"
 pytestmark = pytest.mark.anny
 
 
-def test_quickstart_config_lowers_the_loss_on_the_real_pipeline(tmp_path, tiny_split, anny_body):
+def test_quickstart_config_lowers_the_loss_on_the_real_pipeline(tmp_path, tiny_split, anny_body, capsys):
     config = load_config(TrainConfig, QUICKSTART)
     assert config.model.variant.value == "gnn" and config.model.levels > 0 and config.data.max_garments == 6
     assert config.data.instances and config.optim.validate_every
@@ -30,7 +30,11 @@ def test_quickstart_config_lowers_the_loss_on_the_real_pipeline(tmp_path, tiny_s
     assert len(source.templates) == 2 and len(source.pool) == 8
     fixed = source.make_batch([11, 12])
     source.make_batch = lambda seeds: fixed
-    history = Trainer(config, source, tmp_path / "run", progress=False, tensorboard=False).run()
+    history = Trainer(config, source, tmp_path / "run", progress=True, tensorboard=False).run()
+    # the held-out curve is printed under the progress bar at each validation
+    printed = [line for line in capsys.readouterr().err.splitlines() if "held-out energy gap" in line]
+    assert [line.split(":")[0] for line in printed] == ["step 0", "step 12"], printed
+    assert "gnn 1.000" in printed[0]  # the zero-initialised network leaves X_init's whole gap
     losses = [r["loss"] for r in history]
     # the loss holds E_grav, an offset of the garment's height: a fall of 1 % of it is a fall of
     # several percent of the energy above equilibrium

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -227,9 +228,11 @@ class Trainer:
                 "grad_norm": float(grad_norm), "lr": self.scheduler.get_last_lr()[0], "eta": float(self.model.solver.eta.detach()),
                 "gamma": float(self.model.solver.gamma.detach()), "delta": float(self.model.handler.delta.detach())}
 
-    def _validate(self, validator, writer) -> None:
+    def _validate(self, validator, writer, bar=None) -> None:
         """One held-out validation (`physdrape.train.validation`), appended to validation.jsonl
-        and TensorBoard's val/ scalars."""
+        and TensorBoard's val/ scalars, and a line under the progress bar: the held-out energy gaps
+        the network leaves (1 at X_init, 0 at the teacher's drape), the curve that shows learning
+        where the training loss swings from sample to sample."""
         t0 = time.perf_counter()
         record = {"step": self.step, **validator(self.model), "wall_s": 0.0}
         record["wall_s"] = time.perf_counter() - t0
@@ -239,6 +242,11 @@ class Trainer:
             for key, value in record.items():
                 if key != "step":
                     writer.add_scalar(f"val/{key}", value, self.step)
+        if bar is not None:
+            gaps = ", ".join(f"{row} {record[f'{row}/energy_gap']:.3f}" for row in ("gnn", "t3", "t15")
+                             if f"{row}/energy_gap" in record)
+            if gaps:
+                bar.write(f"step {self.step}: held-out energy gap (1 = X_init, 0 = teacher): {gaps}", file=sys.stderr)
 
     def run(self, *, resume: bool = False, until: int | None = None) -> list[dict]:
         """Train to `optim.steps` (or stop early at step `until`, as an interruption would);
@@ -272,7 +280,7 @@ class Trainer:
 
             validator = Validator(self.source.validation())
             if self.step == 0:
-                self._validate(validator, writer)
+                self._validate(validator, writer, bar)
         try:
             stop = self.config.optim.steps if until is None else min(until, self.config.optim.steps)
             while self.step < stop:
@@ -292,7 +300,7 @@ class Trainer:
                         bar.update(1)
                         bar.set_postfix(loss=f"{record['loss']:.4g}", b2g=f"{record['b2g_percent']:.2f}%")
                 if validator is not None and (self.step % every == 0 or self.step == stop):
-                    self._validate(validator, writer)
+                    self._validate(validator, writer, bar)
                 if self.step % self.config.optim.checkpoint_every == 0 or self.step == stop:
                     self.save()
         finally:
