@@ -159,7 +159,8 @@ def load_mhclo(
             (`resolve_body_penetration`); None leaves the raw refit. Tight suits refit raw
             have part of their area inside the body (MakeHuman hides the skin under them).
         untangle: after that, separate the pieces' layers where they cross (a top refit through
-            trousers; `garments.untangle.untangle_garment`); needs `resolve_margin`.
+            trousers; `garments.untangle.untangle_garment`), kept when no crossing is left;
+            needs `resolve_margin`.
 
     Returns:
         the garment (y-up metres, on that body).
@@ -188,8 +189,10 @@ def load_mhclo(
         )
         g.meta["resolved_verts"] = int(moved)
         if untangle:
-            g.verts, info = untangle_garment(g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin)
-            g.meta["untangled"] = info.as_dict()
+            verts, info = untangle_garment(g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin)
+            if info.faces_after == 0:  # a partial untangle can leave a layer moved aside (an open front)
+                g.verts = verts
+            g.meta["untangled"] = info.as_dict() | {"kept": info.faces_after == 0}
     return g
 
 
