@@ -1,0 +1,93 @@
+"""How far the model's energies on the test instances have moved since `results/eval.json` was written.
+
+    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--out results/eval_drift]
+
+Reruns the model rows of the evaluation (PhysDrape at T = 3 and T = 15, and the solver alone at
+T = 15) on the evaluation's test instances with the bundled model, and divides their mean E_total
+by the per-instance references recorded in the eval file: the same ratios as `eval.md`'s
+"E_total / reference" column, without rerunning the oracle (about an hour). A change that should
+leave the drape's physics alone (a faster kernel, a cache) is checked this way; a change of the
+physics needs the full `physdrape eval`. Writes <out>.md and <out>.json with the command and the
+commit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import statistics
+import sys
+
+import torch
+
+from physdrape.atomic import write_text
+from physdrape.body.anny_body import get_anny_body
+from physdrape.checkpoint import bundled_model, load_model
+from physdrape.eval.config import EvalConfig
+from physdrape.eval.evaluate import Contact, run_model, total_energy
+from physdrape.eval.instances import split_instances
+from physdrape.provenance import provenance
+
+#: eval.json row → (solver steps, with the network)
+ROWS = {"physdrape_t3": (3, True), "physdrape_t15": (15, True), "physics_only": (15, False)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--eval", default="results/eval.json", help="the evaluation record to compare with")
+    parser.add_argument("--out", default="results/eval_drift")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    with open(args.eval) as handle:
+        record = json.load(handle)
+    test = record["sets"]["test"]
+    reference = [r["energy_total"] for r in test["reference"]["per_instance"]]
+    recorded = {row: [r["energy_total"] for r in test["rows"][row]["per_instance"]] for row in ROWS}
+    config = EvalConfig(**{k: v for k, v in record["config"].items() if k in EvalConfig.__dataclass_fields__})
+    instances = split_instances(config, get_anny_body())
+    if len(instances) != len(reference):
+        sys.exit(f"{args.eval} has {len(reference)} test instances but its config gives {len(instances)} here: "
+                 "the garment split or the config differ; rerun `physdrape eval` instead")
+    model, _ = load_model(bundled_model())
+    model.eval()
+    contact = Contact.of(model)
+    now = {row: [] for row in ROWS}
+    wall = {row: [] for row in ROWS}
+    for instance in instances:
+        batch = instance.batch().drape
+        for row, (steps, network) in ROWS.items():
+            x, seconds = run_model(model, batch, steps=steps, network=network)
+            now[row].append(float(total_energy(x, batch, contact)[0]))
+            wall[row].append(seconds)
+    rows = []
+    for row in ROWS:
+        before, after = sum(recorded[row]) / sum(reference), sum(now[row]) / sum(reference)
+        worst = max(abs(a / b - 1.0) for a, b in zip(now[row], recorded[row]))
+        rows.append({"row": row, "ratio_recorded": before, "ratio_now": after, "change": after / before - 1.0,
+                     "largest_instance_change": worst, "model_wall_median_s": statistics.median(wall[row])})
+    command = shlex.join(["python", *sys.argv])
+    out = {"command": command, "provenance": provenance(), "eval_file": args.eval,
+           "eval_commit": record["versions"].get("git_commit"),
+           "load_average": os.getloadavg(), "instances": len(instances), "rows": rows,
+           "per_instance": {"reference": reference, "recorded": recorded, "now": now}}
+    lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
+             f"Command: `{command}`  ", f"Git commit: `{out['provenance']['git_commit']}`"
+             + (" (with uncommitted changes)" if out["provenance"]["git_dirty"] else "") + "  ",
+             f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
+             f"instances, its references; 1 torch thread; load average "
+             + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
+             "| row | E_total / reference, recorded | now | change | largest change of one instance |",
+             "|---|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['row']} | {r['ratio_recorded']:.4f} | {r['ratio_now']:.4f} | {100 * r['change']:+.2f} % | "
+                     f"{100 * r['largest_instance_change']:.2f} % |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    write_text(f"{args.out}.md", text)
+    write_text(f"{args.out}.json", json.dumps(out, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
