@@ -1,4 +1,5 @@
-"""Deformed states, rotations and the force-against-energy check shared by the physics tests."""
+"""Deformed states, rotations, the force-against-energy check and the assembly of pair-term
+Hessians shared by the physics tests."""
 
 import pytest
 import torch
@@ -37,4 +38,14 @@ def assert_force_is_negative_gradient(energy, force, x: torch.Tensor, *, seed: i
         fd = (energy(x.detach() + h * d).sum() - energy(x.detach() - h * d).sum()) / (2 * h)
         assert abs(float(fd)) > 1e-7, "finite-difference signal is zero"
         assert float(-(f * d).sum()) == pytest.approx(float(fd), rel=1e-7, abs=1e-12)
+
+
+def assembled_pair_hessian(pairs: torch.Tensor, blocks: torch.Tensor, num_verts: int) -> torch.Tensor:
+    """The dense Hessian (3V, 3V) of a term on vertex pairs (a, b) whose energy depends on x_a − x_b:
+    each pair's 3×3 block h enters at (a, a) and (b, b), and −h at (a, b) and (b, a)."""
+    out = torch.zeros(3 * num_verts, 3 * num_verts, dtype=blocks.dtype)
+    for (a, b), h in zip(pairs.tolist(), blocks):
+        for r, c, sign in ((a, a, 1), (b, b, 1), (a, b, -1), (b, a, -1)):
+            out[3 * r:3 * r + 3, 3 * c:3 * c + 3] += sign * h
+    return out
 

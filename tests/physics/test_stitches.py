@@ -7,7 +7,11 @@ from dataclasses import replace
 
 import pytest
 import torch
-from physics_cases import assert_force_is_negative_gradient, deformed
+from physics_cases import (
+    assembled_pair_hessian,
+    assert_force_is_negative_gradient,
+    deformed,
+)
 
 from physdrape.physics import Cloth, energy_terms, internal_energy, internal_forces
 from physdrape.physics.stitches import (
@@ -43,10 +47,7 @@ def test_stitch_hessian_is_exact_and_psd(sheet):
     stitches = make_stitches(sheet, x, 3, count=3)
     full = torch.autograd.functional.hessian(lambda y: stitch_energy(y, stitches).sum(), x)
     full = full.reshape(sheet.num_verts * 3, sheet.num_verts * 3)
-    assembled = torch.zeros_like(full)
-    for (i, j), h in zip(stitches.pairs.tolist(), stitch_pair_blocks(x, stitches)):
-        for a, b, sign in ((i, i, 1), (j, j, 1), (i, j, -1), (j, i, -1)):
-            assembled[3 * a:3 * a + 3, 3 * b:3 * b + 3] += sign * h
+    assembled = assembled_pair_hessian(stitches.pairs, stitch_pair_blocks(x, stitches), sheet.num_verts)
     assert full.abs().max() > 1.0
     torch.testing.assert_close(assembled, full, rtol=1e-9, atol=1e-9)
     assert float(torch.linalg.eigvalsh(stitch_pair_blocks(x, stitches)).min()) >= -1e-12
