@@ -117,8 +117,8 @@ def main() -> None:
         return
 
     import torch
+    from report import source_lines, write_report
 
-    from physdrape.atomic import write_text
     from physdrape.provenance import provenance
 
     devices = [d for d in args.devices if d == "cpu" or torch.cuda.is_available()]
@@ -159,8 +159,7 @@ def main() -> None:
     head = ["| row | " + " | ".join(columns) + (" | ratio base / this |" if args.base else " |") + " target |",
             "|---|" + "---:|" * len(columns) + ("---:|" if args.base else "") + "---:|"]
     lines = ["# Drape timings through the public API (bundled model, T = 15)", "",
-             f"Command: `{command}`  ", f"Git commit: `{record['provenance']['git_commit']}`"
-             + (" (with uncommitted changes)" if record["provenance"]["git_dirty"] else "") + "  ",
+             *source_lines(command, record["provenance"]),
              f"{args.threads} torch thread(s); medians over {args.rounds} alternating process(es) per source × "
              f"{args.repeats} calls; load average (1 min) during the run "
              + ", ".join(f"{v:.2f}" for v in load) + (f"; not available here: {', '.join(skipped)}" if skipped else ""),
@@ -174,10 +173,7 @@ def main() -> None:
             ratio = f" {base / this:.2f} |" if this and base else " – |"
         target = f"≤ {TARGETS[row]:.0f}" if row in TARGETS else "–"
         lines.append(f"| {label} | {cells} |{ratio} {target} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    write_text(f"{args.out}.md", text)
-    write_text(f"{args.out}.json", json.dumps(record, indent=1) + "\n")
+    write_report(args.out, lines, record)
 
 
 if __name__ == "__main__":

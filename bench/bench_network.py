@@ -16,7 +16,6 @@ for every size). Writes <out>.md and <out>.json with the command, the commit and
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import statistics
@@ -25,11 +24,11 @@ import time
 
 import torch
 from bench_model import problem
+from report import source_lines, write_report
 
-from physdrape.atomic import write_text
-from physdrape.provenance import provenance
 from physdrape.model import ModelConfig, PhysDrape
 from physdrape.model.gnn import level_schedule
+from physdrape.provenance import provenance
 
 
 def reach(blocks: int, levels: int) -> int:
@@ -93,8 +92,7 @@ def main() -> None:
               "garment_verts": batch.garments.num_verts, "body_verts": batch.bodies.num_verts,
               "threads": 1, "repeats": args.repeats, "rows": rows}
     lines = ["# The network's cost per garment (GNN pass and graph inputs, no physics, 1 thread)", "",
-             f"Command: `{command}`  ", f"Git commit: `{record['provenance']['git_commit']}`"
-             + (" (with uncommitted changes)" if record["provenance"]["git_dirty"] else "") + "  ",
+             *source_lines(command, record["provenance"]),
              f"Garment: {record['garment_verts']} vertices; body: {record['body_verts']} vertices; "
              f"median of {args.repeats} interleaved rounds; load average "
              + ", ".join(f"{v:.2f}" for v in record["load_average"]), "",
@@ -105,10 +103,7 @@ def main() -> None:
         lines.append(f"| {r['latent']}×{r['blocks']}, {r['levels']} | {r['params']:,} | {r['reach_edges']} | "
                      f"{r['gnn_median_ms']:.1f} | {r['gnn_min_ms']:.1f}–{r['gnn_max_ms']:.1f} | "
                      f"{r['gnn_ratio_to_first']:.2f} | {r['inputs_median_ms']:.1f} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    write_text(f"{args.out}.md", text)
-    write_text(f"{args.out}.json", json.dumps(record, indent=1) + "\n")
+    write_report(args.out, lines, record)
 
 
 if __name__ == "__main__":

@@ -21,8 +21,8 @@ import statistics
 import sys
 
 import torch
+from report import source_lines, write_report
 
-from physdrape.atomic import write_text
 from physdrape.body.anny_body import get_anny_body
 from physdrape.checkpoint import bundled_model, load_model
 from physdrape.eval.config import EvalConfig
@@ -73,8 +73,7 @@ def main() -> None:
            "load_average": os.getloadavg(), "instances": len(instances), "rows": rows,
            "per_instance": {"reference": reference, "recorded": recorded, "now": now}}
     lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
-             f"Command: `{command}`  ", f"Git commit: `{out['provenance']['git_commit']}`"
-             + (" (with uncommitted changes)" if out["provenance"]["git_dirty"] else "") + "  ",
+             *source_lines(command, out["provenance"]),
              f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
              f"instances, its references; 1 torch thread; load average "
              + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
@@ -83,10 +82,7 @@ def main() -> None:
     for r in rows:
         lines.append(f"| {r['row']} | {r['ratio_recorded']:.4f} | {r['ratio_now']:.4f} | {100 * r['change']:+.2f} % | "
                      f"{100 * r['largest_instance_change']:.2f} % |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    write_text(f"{args.out}.md", text)
-    write_text(f"{args.out}.json", json.dumps(out, indent=1) + "\n")
+    write_report(args.out, lines, out)
 
 
 if __name__ == "__main__":
