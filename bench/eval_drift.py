@@ -1,10 +1,11 @@
 """How far the model's energies on the test instances have moved since `results/eval.json` was written.
 
-    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--out results/eval_drift]
+    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--out results/eval_drift]
 
-Reruns the model rows of the evaluation (PhysDrape at T = 3 and T = 15, and the solver alone at
-T = 15) on the evaluation's test instances with the bundled model, and divides their mean E_total
-by the per-instance references recorded in the eval file: the same ratios as `eval.md`'s
+Reruns the model rows of the evaluation (GNN only, PhysDrape at T = 3 and T = 15, and the solver
+alone at T = 15) on the evaluation's test instances with the bundled model (or `--checkpoint`, a
+model trained since), and divides their mean E_total by the per-instance references recorded in
+the eval file: the same ratios as `eval.md`'s
 "E_total / reference" column, without rerunning the oracle (about an hour). A change that should
 leave the drape's physics alone (a faster kernel, a cache) is checked this way; a change of the
 physics needs the full `physdrape eval`. Writes <out>.md and <out>.json with the command and the
@@ -28,15 +29,18 @@ from physdrape.checkpoint import bundled_model, load_model
 from physdrape.eval.config import EvalConfig
 from physdrape.eval.evaluate import Contact, run_model, total_energy
 from physdrape.eval.instances import split_instances
+from physdrape.model.config import Variant
 from physdrape.provenance import provenance
 
-#: eval.json row → (solver steps, with the network)
-ROWS = {"physdrape_t3": (3, True), "physdrape_t15": (15, True), "physics_only": (15, False)}
+#: eval.json row → (variant, solver steps, with the network)
+ROWS = {"gnn_only": (Variant.GNN_ONLY, None, True), "physdrape_t3": (Variant.FULL, 3, True),
+        "physdrape_t15": (Variant.FULL, 15, True), "physics_only": (Variant.FULL, 15, False)}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--eval", default="results/eval.json", help="the evaluation record to compare with")
+    parser.add_argument("--checkpoint", default="", help="the model to run (default: the bundled one)")
     parser.add_argument("--out", default="results/eval_drift")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -50,15 +54,15 @@ def main() -> None:
     if len(instances) != len(reference):
         sys.exit(f"{args.eval} has {len(reference)} test instances but its config gives {len(instances)} here: "
                  "the garment split or the config differ; rerun `physdrape eval` instead")
-    model, _ = load_model(bundled_model())
-    model.eval()
-    contact = Contact.of(model)
+    checkpoint = args.checkpoint or bundled_model()
+    models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
+    contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
     wall = {row: [] for row in ROWS}
     for instance in instances:
         batch = instance.batch().drape
-        for row, (steps, network) in ROWS.items():
-            x, seconds = run_model(model, batch, steps=steps, network=network)
+        for row, (variant, steps, network) in ROWS.items():
+            x, seconds = run_model(models[variant], batch, steps=steps, network=network)
             now[row].append(float(total_energy(x, batch, contact)[0]))
             wall[row].append(seconds)
     rows = []
@@ -68,14 +72,14 @@ def main() -> None:
         rows.append({"row": row, "ratio_recorded": before, "ratio_now": after, "change": after / before - 1.0,
                      "largest_instance_change": worst, "model_wall_median_s": statistics.median(wall[row])})
     command = shlex.join(["python", *sys.argv])
-    out = {"command": command, "provenance": provenance(), "eval_file": args.eval,
+    out = {"command": command, "provenance": provenance(), "eval_file": args.eval, "checkpoint": str(checkpoint),
            "eval_commit": record["versions"].get("git_commit"),
            "load_average": os.getloadavg(), "instances": len(instances), "rows": rows,
            "per_instance": {"reference": reference, "recorded": recorded, "now": now}}
     lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
              *source_lines(command, out["provenance"]),
              f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
-             f"instances, its references; 1 torch thread; load average "
+             f"instances, its references; model `{checkpoint}`; 1 torch thread; load average "
              + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
              "| row | E_total / reference, recorded | now | change | largest change of one instance |",
              "|---|---:|---:|---:|---:|"]

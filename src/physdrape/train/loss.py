@@ -9,8 +9,10 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.proximity import BodySurface
+from physdrape.model.config import ModelConfig
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.energy import drape_energies
+from physdrape.train.instances import teacher_solver
 
 
 @dataclass(frozen=True)
@@ -28,16 +30,30 @@ class LossConfig:
     from the same X_init). The energy alone tells each vertex which way is downhill; the teacher
     also says how far the garment as a whole still has to settle, which a few solver steps in the
     loop cannot show. 0 = the paper's loss (and no teacher needed).
+
+    lookahead_weight [J/m²] and lookahead_steps: adds, per garment, lookahead_weight × the
+    mass-weighted mean squared distance [m²] of the drape to where `lookahead_steps` steps of the
+    teacher's solver take it from there (computed without gradient by the trainer,
+    `lookahead_target`). Its gradient on a vertex is the solver's preconditioned step from the
+    drape, scaled by the vertex's mass: where the energy's gradient is dominated by the stiff
+    strain modes, this one carries the soft, garment-wide moves the preconditioner's coarse level
+    makes. Its only fixed point is a drape the solver does not move, an equilibrium; physics alone
+    makes the target. 0 = off.
     """
 
     per_garment_scale: str = "none"
     teacher_weight: float = 0.0
+    lookahead_weight: float = 0.0
+    lookahead_steps: int = 3
 
     def __post_init__(self) -> None:
         if self.per_garment_scale not in ("none", "initial"):
             raise ValueError(f"LossConfig.per_garment_scale must be 'none' or 'initial', got {self.per_garment_scale!r}")
         if not self.teacher_weight >= 0:
             raise ValueError(f"LossConfig.teacher_weight must be ≥ 0 [J/m²], got {self.teacher_weight!r}")
+        if not self.lookahead_weight >= 0 or self.lookahead_steps < 1:
+            raise ValueError(f"LossConfig needs lookahead_weight ≥ 0 [J/m²] and lookahead_steps ≥ 1, got "
+                             f"{self.lookahead_weight!r} and {self.lookahead_steps!r}")
 
 
 def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth) -> Tensor:
@@ -46,16 +62,29 @@ def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth) -> Tensor:
     return cloth.sum_per_garment(weighted, cloth.vert_garment) / cloth.sum_per_garment(cloth.mass, cloth.vert_garment)
 
 
+@torch.no_grad()
+def lookahead_target(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig,
+                     model: ModelConfig) -> Tensor:
+    """Where `config.lookahead_steps` steps of the teacher's solver (`instances.teacher_solver`:
+    the two-level solver with the product's settings and the model's contact term) take the
+    drape x (ΣV, 3) [m] without the network's forces; no gradient."""
+    solver = teacher_solver(model).to(device=x.device)
+    return solver(x.detach(), cloth, f_hat=None, steps=config.lookahead_steps, bodies=bodies, body_index=body_index)
+
+
 def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig,
                x_init: Tensor | None = None, *, contact_stiffness: float, margin: float,
-               teacher: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
+               teacher: Tensor | None = None, lookahead: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
     """The training loss: the sum of the terms per garment (divided by the garment's scale when
     `config.per_garment_scale` is "initial", which needs x_init), plus the teacher term when
-    `config.teacher_weight` > 0 (which needs `teacher`, (ΣV, 3) [m]), averaged over the batch.
+    `config.teacher_weight` > 0 (which needs `teacher`, (ΣV, 3) [m]) and the lookahead term when
+    `config.lookahead_weight` > 0 (which needs `lookahead`, (ΣV, 3) [m], see `lookahead_target`),
+    averaged over the batch.
     contact_stiffness [J/m³], margin [m]: the contact term's k_c and ε (see `drape_energies`).
 
     Returns the scalar loss and the batch-mean of each term [J] (detached) for logging, with the
-    teacher distance as "teacher_rms" [m] when a teacher is given.
+    teacher distance as "teacher_rms" [m] when a teacher is given and the lookahead distance as
+    "lookahead_rms" [m] when a lookahead target is.
     """
     contact = {"contact_stiffness": contact_stiffness, "margin": margin}
     terms = drape_energies(x, cloth, bodies, body_index, **contact)
@@ -77,4 +106,10 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
         logged["teacher_rms"] = distance.detach().mean().sqrt()
         if config.teacher_weight > 0:
             total = total + config.teacher_weight * distance
+    if config.lookahead_weight > 0 and lookahead is None:
+        raise ValueError("LossConfig.lookahead_weight > 0 needs the lookahead target (`lookahead_target`)")
+    if lookahead is not None:
+        distance = teacher_distance(x, lookahead, cloth)
+        logged["lookahead_rms"] = distance.detach().mean().sqrt()
+        total = total + config.lookahead_weight * distance
     return total.mean(), logged

@@ -31,7 +31,7 @@ from physdrape.model import ModelConfig, PhysDrape
 from physdrape.model.stretching_solver import SolverKind
 from physdrape.physics.metrics import b2g_percent
 from physdrape.train.data import DataConfig, TrainingBatch
-from physdrape.train.loss import LossConfig, drape_loss
+from physdrape.train.loss import LossConfig, drape_loss, lookahead_target
 
 
 class SampleSource(Protocol):
@@ -213,9 +213,13 @@ class Trainer:
         sample = self._local_batch()
         batch = sample.drape
         out = model(batch)
+        lookahead = None
+        if self.config.loss.lookahead_weight > 0:
+            lookahead = lookahead_target(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss,
+                                         self.config.model)
         loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init,
                                  contact_stiffness=self.config.model.contact_stiffness, margin=self.config.model.margin,
-                                 teacher=sample.teacher)
+                                 teacher=sample.teacher, lookahead=lookahead)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)
