@@ -219,3 +219,16 @@ def test_tiny_protocol_oracle_rows_meet_the_tolerance_when_converged(results, ti
         assert record["converged"] == (record["reason"] == "converged" or record["reason"] == "line_search")
         if record["converged"]:
             assert record["oracle_residual"] < tiny.oracle_tol
+
+
+def test_what_the_network_adds_is_the_model_row_minus_the_solver_alone(results):
+    data = results["sets"]["test"]
+    md = render_markdown(results)
+    table = md[md.index("What the network adds"):].split("\n\n")[1].splitlines()
+    assert [line.split(" | ")[0] for line in table[2:]] == ["| 3", "| 15"]
+    for line, (model, alone) in zip(table[2:], (("physdrape_t3", "physics_only_t3"), ("physdrape_t15", "physics_only")),
+                                    strict=True):
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        a, b = data["rows"][model]["summary"], data["rows"][alone]["summary"]
+        assert float(cells[3]) == pytest.approx(a["energy_total_ratio"] - b["energy_total_ratio"], abs=6e-4)
+        assert float(cells[6]) == pytest.approx(a["strain_ratio"] - b["strain_ratio"], abs=6e-4)

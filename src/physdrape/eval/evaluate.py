@@ -14,8 +14,9 @@ Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switc
   as post-processing (variant POST_COL; the paper's Post-Col is a model *trained* without the
   handler — here it is the full model's weights with the learned δ replaced by 1);
 - ``physdrape_t3`` / ``physdrape_t15``: the full model (GNN → solver T → handler, learned δ);
-- ``physics_only``: the same solver and handler with the network left out (Δx = 0, f̂ = 0): what
-  the network adds is the difference to ``physdrape_t15``;
+- ``physics_only_t3`` / ``physics_only``: the same solver (T = 3 / 15) and handler with the network
+  left out (Δx = 0, f̂ = 0): what the network adds is the difference to ``physdrape_t3`` /
+  ``physdrape_t15`` (the report's "What the network adds" table);
 - ``oracle``: `physdrape.physics.relax` from the skinned start (penalty contact, default tol 1e-2, a
   wall-time budget per instance); its row reports whether it converged. It does not involve the
   model, so its results are cached per instance (`physdrape.eval.reference_cache`) and reused by
@@ -94,6 +95,9 @@ MAIN_ROWS = (
             "GNN → solver (T = eval_steps) → handler with δ = 1 as post-processing (full model's weights, learned δ replaced by 1)"),
     RowSpec("physdrape_t3", "PhysDrape (T=3)", Variant.FULL, 3, "GNN → solver T = 3 → handler (learned δ)"),
     RowSpec("physdrape_t15", "PhysDrape (T=15)", Variant.FULL, 15, "GNN → solver T = 15 → handler (learned δ)"),
+    RowSpec("physics_only_t3", "No network (T=3; context)", Variant.FULL, 3,
+            "X_init → solver T = 3 with Δx = 0, f̂ = 0 → handler: the PhysDrape (T=3) row without its network",
+            network=False),
     RowSpec("physics_only", "No network (T=15; context)", Variant.FULL, 15,
             "X_init → solver T = 15 with Δx = 0, f̂ = 0 → handler: the model's physics without its network, "
             "so the PhysDrape row minus this one is what the network adds", network=False),

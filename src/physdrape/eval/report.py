@@ -68,6 +68,29 @@ def _category_table(rows: list[tuple[str, str]], data: dict) -> list[str]:
     return lines
 
 
+#: (T, the full model's row, the same solver without the network)
+NETWORK_PAIRS = ((3, "physdrape_t3", "physics_only_t3"), (15, "physdrape_t15", "physics_only"))
+
+
+def _network_table(data: dict) -> list[str]:
+    """What the network adds at each T: the full model's E_total and E_strain over the reference's
+    beside the network-free solver's (the same solver and handler, Δx = 0, f̂ = 0), and the
+    difference (negative: the network lowers the energy)."""
+    head = ("| T | E_total / reference: PhysDrape | solver alone | network's share | "
+            "E_strain / reference: PhysDrape | solver alone | network's share |")
+    lines = [head, "|---|---:|---:|---:|---:|---:|---:|"]
+    for steps, model, alone in NETWORK_PAIRS:
+        if model not in data["rows"] or alone not in data["rows"]:
+            continue
+        a, b = data["rows"][model]["summary"], data["rows"][alone]["summary"]
+        cells = [str(steps)]
+        for key in ("energy_total_ratio", "strain_ratio"):
+            x, y = a.get(key), b.get(key)
+            cells += [_fmt(x), _fmt(y), f"{x - y:+.3f}" if x is not None and y is not None and math.isfinite(x - y) else "–"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
 def _published(rows: list[dict]) -> list[str]:
     lines = [f"| Method ({PUBLISHED_NOTE}) | E_strain | E_bend | B2G % |", "|---|---|---|---|"]
     lines += [f"| {r['method']} | {r['strain']} | {r['bend']} | {r['b2g_percent']} |" for r in rows]
@@ -141,6 +164,10 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
             out += ["", ("E_total / reference by garment category (row mean over the category's instances over the "
                          "reference's mean over them; instances in brackets):"), ""]
             out += _category_table(keyed, data)
+        if data.get("reference"):
+            out += ["", ("What the network adds (the full model's ratios minus those of the same solver and handler "
+                         "without the network):"), ""]
+            out += _network_table(data)
         sources = {d["source"] for d in results["ablation_definitions"].values()}
         if sources == {"switched"}:
             how = "switched at inference on the full model, not retrained"
