@@ -34,7 +34,8 @@ from physdrape.provenance import provenance
 
 #: eval.json row → (variant, solver steps, with the network)
 ROWS = {"gnn_only": (Variant.GNN_ONLY, None, True), "physdrape_t3": (Variant.FULL, 3, True),
-        "physdrape_t15": (Variant.FULL, 15, True), "physics_only": (Variant.FULL, 15, False)}
+        "physdrape_t15": (Variant.FULL, 15, True), "physics_only_t3": (Variant.FULL, 3, False),
+        "physics_only": (Variant.FULL, 15, False)}
 
 
 def main() -> None:
@@ -48,7 +49,7 @@ def main() -> None:
         record = json.load(handle)
     test = record["sets"]["test"]
     reference = [r["energy_total"] for r in test["reference"]["per_instance"]]
-    recorded = {row: [r["energy_total"] for r in test["rows"][row]["per_instance"]] for row in ROWS}
+    recorded = {row: [r["energy_total"] for r in test["rows"][row]["per_instance"]] for row in ROWS if row in test["rows"]}
     config = EvalConfig(**{k: v for k, v in record["config"].items() if k in EvalConfig.__dataclass_fields__})
     instances = split_instances(config, get_anny_body())
     if len(instances) != len(reference):
@@ -67,9 +68,11 @@ def main() -> None:
             wall[row].append(seconds)
     rows = []
     for row in ROWS:
-        before, after = sum(recorded[row]) / sum(reference), sum(now[row]) / sum(reference)
-        worst = max(abs(a / b - 1.0) for a, b in zip(now[row], recorded[row]))
-        rows.append({"row": row, "ratio_recorded": before, "ratio_now": after, "change": after / before - 1.0,
+        after = sum(now[row]) / sum(reference)
+        before = sum(recorded[row]) / sum(reference) if row in recorded else None  # a row the eval file lacks
+        worst = max(abs(a / b - 1.0) for a, b in zip(now[row], recorded[row])) if row in recorded else None
+        rows.append({"row": row, "ratio_recorded": before, "ratio_now": after,
+                     "change": None if before is None else after / before - 1.0,
                      "largest_instance_change": worst, "model_wall_median_s": statistics.median(wall[row])})
     command = shlex.join(["python", *sys.argv])
     out = {"command": command, "provenance": provenance(), "eval_file": args.eval, "checkpoint": str(checkpoint),
@@ -84,6 +87,9 @@ def main() -> None:
              "| row | E_total / reference, recorded | now | change | largest change of one instance |",
              "|---|---:|---:|---:|---:|"]
     for r in rows:
+        if r["ratio_recorded"] is None:
+            lines.append(f"| {r['row']} | – | {r['ratio_now']:.4f} | – | – |")
+            continue
         lines.append(f"| {r['row']} | {r['ratio_recorded']:.4f} | {r['ratio_now']:.4f} | {100 * r['change']:+.2f} % | "
                      f"{100 * r['largest_instance_change']:.2f} % |")
     write_report(args.out, lines, out)
