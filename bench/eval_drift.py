@@ -20,6 +20,7 @@ import os
 import shlex
 import statistics
 import sys
+from pathlib import Path
 
 import torch
 from report import source_lines, write_report
@@ -55,7 +56,9 @@ def main() -> None:
     if len(instances) != len(reference):
         sys.exit(f"{args.eval} has {len(reference)} test instances but its config gives {len(instances)} here: "
                  "the garment split or the config differ; rerun `physdrape eval` instead")
-    checkpoint = args.checkpoint or bundled_model()
+    checkpoint = Path(args.checkpoint or bundled_model()).resolve()
+    if checkpoint.is_relative_to(Path.cwd()):
+        checkpoint = checkpoint.relative_to(Path.cwd())  # a path inside the repository names no machine
     models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
