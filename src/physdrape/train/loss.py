@@ -38,7 +38,8 @@ class LossConfig:
     drape, scaled by the vertex's mass: where the energy's gradient is dominated by the stiff
     strain modes, this one carries the soft, garment-wide moves the preconditioner's coarse level
     makes. Its only fixed point is a drape the solver does not move, an equilibrium; physics alone
-    makes the target. 0 = off.
+    makes the target. 0 = off (the shipped recipe's choice: docs/training/README.md says what the
+    term gave).
     """
 
     per_garment_scale: str = "none"
