@@ -3,10 +3,11 @@
     .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--out results/eval_drift]
 
 Reruns the model rows of the evaluation (GNN only, PhysDrape at T = 3 and T = 15, and the solver
-alone at T = 15) on the evaluation's test instances with the bundled model (or `--checkpoint`, a
-model trained since), and divides their mean E_total by the per-instance references recorded in
-the eval file: the same ratios as `eval.md`'s
-"E_total / reference" column, without rerunning the oracle (about an hour). A change that should
+alone at T = 3 and T = 15) on the evaluation's test instances with the bundled model (or
+`--checkpoint`, a model trained since), and divides their mean E_total by the per-instance
+references recorded in the eval file: the same ratios as `eval.md`'s "E_total / reference"
+column, without rerunning the oracle (about an hour). A row the eval file lacks shows its value
+now only. A change that should
 leave the drape's physics alone (a faster kernel, a cache) is checked this way; a change of the
 physics needs the full `physdrape eval`. Writes <out>.md and <out>.json with the command and the
 commit.
