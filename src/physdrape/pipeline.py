@@ -37,7 +37,7 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
-from physdrape.physics.layers import DEFAULT_LAYER_GAP, DEFAULT_LAYER_STIFFNESS, LayerOrder
+from physdrape.physics.layers import LayerOrder
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
@@ -288,9 +288,7 @@ class DrapePipeline:
         with torch.no_grad():
             normal = bodies.query(x_init[inner].to(bodies.verts.dtype),
                                   body_index=body_of_job[batch.vert_garment[inner]]).normal
-        full = torch.ones(len(pairs), dtype=x_init.dtype, device=batch.device)
-        return LayerOrder(pairs=pairs, normal=normal.to(x_init.dtype), gap=DEFAULT_LAYER_GAP * full,
-                          stiffness=DEFAULT_LAYER_STIFFNESS * full)
+        return LayerOrder.uniform(pairs, normal.to(x_init.dtype))
 
     def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
         """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to

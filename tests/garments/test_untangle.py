@@ -68,3 +68,34 @@ def test_fit_garment_mhclo_suit_is_valid():
     assert "displacement_from_refit_m" in result.relax
     report = validate_garment(result.verts, result.faces, margin=2e-3, require_clearance=True)
     assert report.ok and len(report.self_intersecting_faces) == 0, str(report)
+
+
+OBJ_SUIT = MAKEHUMAN_DIR / "female_casualsuit01" / "female_casualsuit01"
+needs_obj_suit = pytest.mark.skipif(not OBJ_SUIT.with_suffix(".obj").is_file(),
+                                    reason=f"MakeHuman CC0 suit not found at {OBJ_SUIT}.obj")
+
+
+@needs_obj_suit
+def test_fit_places_a_suit_obj_where_its_binding_puts_it():
+    """The suit's raw .obj (decimetres, on MakeHuman's base body) is aligned within 1 cm of the
+    translation that best matches its own .mhclo refit onto the canonical body (the top's
+    highest point alone would put it 6 cm too high)."""
+    from physdrape.api.fitting import _align_to_body
+    from physdrape.body.anny_body import get_anny_body
+    from physdrape.garments import load_mhclo
+    from physdrape.geometry.mesh import read_mesh
+
+    refit = load_mhclo(OBJ_SUIT.with_suffix(".mhclo"), target_edge=None, resolve_margin=None).verts
+    verts = read_mesh(OBJ_SUIT.with_suffix(".obj"))[0] * 0.1
+    best = refit.mean(0) - verts.mean(0)
+    t = _align_to_body(verts, get_anny_body())
+    assert np.linalg.norm(t - best) < 0.01, (t, best)
+
+
+@needs_obj_suit
+def test_fit_garment_obj_suit_in_decimetres_is_valid():
+    from physdrape.api import fit_garment
+
+    result = fit_garment(OBJ_SUIT.with_suffix(".obj"), units="dm", iters=3)
+    assert result.ok, result.validation
+    assert result.relax["layer_pairs"] > 0  # the top and trousers relax in their layer order

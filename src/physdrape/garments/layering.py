@@ -2,8 +2,11 @@
 
 Where two pieces come within `radius` of each other on the template (a top's hem over the
 trousers' waistband, a jacket over a shirt), the vertex farther from the body is the outer one.
-`layer_pairs` pairs every such vertex with its nearest vertex of another piece, as [outer, inner];
-`physics.layers` keeps the pairs in that order during a drape.
+`layer_pairs` pairs every such vertex with its three nearest vertices of another piece, as
+[outer, inner]; `physics.layers` keeps the pairs in that order during a drape. Each pair holds the
+outer vertex above a plane through the inner one, so one partner leaves the inner sheet free to
+bulge through between paired vertices (a tucked shirt bunching under trousers); three hold the
+surface around it.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ __all__ = ["layer_pairs"]
 
 
 def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray, *,
-                radius: float = 0.04, lift: float = 5e-4) -> np.ndarray:
+                radius: float = 0.04, lift: float = 5e-4, neighbours: int = 3) -> np.ndarray:
     """[outer, inner] vertex pairs of different pieces that overlap on the template.
 
     Args:
@@ -28,6 +31,8 @@ def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, bo
             them).
         lift: how much farther from the body the outer vertex must be [m] (pairs closer in body
             distance than this are side by side, not layered, and left out).
+        neighbours: each vertex is paired with this many nearest vertices of other pieces (within
+            `radius`).
 
     Returns:
         (P, 2) int64 [outer, inner], unique rows, sorted.
@@ -39,9 +44,10 @@ def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, bo
     a, b = [], []
     for p in np.unique(piece):  # each vertex's nearest vertex of another piece
         own, other = np.flatnonzero(piece == p), np.flatnonzero(piece != p)
-        dist, idx = cKDTree(x[other]).query(x[own], distance_upper_bound=radius)
+        dist, idx = cKDTree(x[other]).query(x[own], k=neighbours, distance_upper_bound=radius)
+        dist, idx = dist.reshape(len(own), -1), idx.reshape(len(own), -1)
         found = np.isfinite(dist)
-        a.append(own[found])
+        a.append(np.broadcast_to(own[:, None], dist.shape)[found])
         b.append(other[idx[found]])
     a, b = np.concatenate(a), np.concatenate(b)
     if len(a) == 0:

@@ -50,6 +50,14 @@ class LayerOrder:
                           self.gap.to(device=device, dtype=dtype), self.stiffness.to(device=device, dtype=dtype))
 
     @staticmethod
+    def uniform(pairs: Tensor, normal: Tensor, *, gap: float = DEFAULT_LAYER_GAP,
+                stiffness: float = DEFAULT_LAYER_STIFFNESS) -> LayerOrder:
+        """Pairs (P, 2) with their inner normals (P, 3), one gap [m] and stiffness [N/m] for all."""
+        full = torch.ones(len(pairs), dtype=normal.dtype, device=normal.device)
+        return LayerOrder(pairs=pairs.to(device=normal.device), normal=normal, gap=gap * full,
+                          stiffness=stiffness * full)
+
+    @staticmethod
     def cat(parts: list[LayerOrder]) -> LayerOrder:
         """One set of several (indices already offset into one batch)."""
         return LayerOrder(*(torch.cat([getattr(p, name) for p in parts])

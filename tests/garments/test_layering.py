@@ -1,0 +1,46 @@
+"""Layer pairs of a multi-piece garment (`garments.layering`) on a toy body."""
+
+import numpy as np
+
+from physdrape.garments.layering import layer_pairs
+
+
+def _cube(half: float = 0.1):
+    v = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-half, half)], float)
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, f
+
+
+def _outward(v, f):
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    c = v[f].mean(1)
+    return f if np.all((n * c).sum(1) > 0) else f[:, ::-1]
+
+
+def test_each_vertex_is_paired_with_its_nearest_vertices_of_the_other_piece():
+    """Two grids over the cube's top face, 5 mm and 15 mm above it, the outer one shifted by a
+    third of a cell: every outer vertex within reach gets its k nearest inner vertices, in
+    [outer, inner] order, and vice versa."""
+    body_v, body_f = _cube()
+    body_f = _outward(body_v, body_f)
+    g = np.linspace(-0.06, 0.06, 7)
+    xx, zz = np.meshgrid(g, g, indexing="ij")
+    grid = np.stack([xx.ravel(), np.zeros(xx.size), zz.ravel()], 1)
+    inner = grid + [0.0, 0.105, 0.0]
+    outer = grid + [0.0067, 0.115, 0.0067]
+    verts = np.concatenate([inner, outer])
+    piece = np.repeat([0, 1], len(grid))
+    one = layer_pairs(verts, piece, body_v, body_f, neighbours=1)
+    three = layer_pairs(verts, piece, body_v, body_f, neighbours=3)
+    for pairs in (one, three):
+        assert np.all(piece[pairs[:, 0]] == 1) and np.all(piece[pairs[:, 1]] == 0)  # outer over inner
+    assert len(three) > len(one)
+    o = 24  # an outer vertex in the middle of the grid
+    dist = np.linalg.norm(inner - outer[o], axis=1)
+    nearest = set(np.argsort(dist)[:3].tolist())
+    assert nearest <= set(three[three[:, 0] == len(grid) + o, 1].tolist())
+    assert int(np.argmin(dist)) in one[one[:, 0] == len(grid) + o, 1]
+    assert not nearest <= set(one[one[:, 0] == len(grid) + o, 1].tolist())
+    far = layer_pairs(verts + np.repeat([[0, 0, 0], [0, 0.1, 0]], len(grid), 0), piece, body_v, body_f)
+    assert len(far) == 0  # beyond the 4 cm radius nothing is paired
