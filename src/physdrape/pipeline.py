@@ -29,8 +29,8 @@ from torch import Tensor
 
 from physdrape.body.model import BodyState
 from physdrape.body.skinning_transfer import SkinningTransfer
-from physdrape.garments.closures import panel_overlaps
 from physdrape.garments import layering
+from physdrape.garments.closures import panel_overlaps
 from physdrape.garments.pieces import garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.proximity import BodySurface

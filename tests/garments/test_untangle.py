@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from physdrape.garments.intersections import self_intersecting_faces, self_intersecting_pairs
+from physdrape.garments.intersections import (
+    self_intersecting_faces,
+    self_intersecting_pairs,
+)
 
 MAKEHUMAN_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "makehuman_cc0"
 SUIT = MAKEHUMAN_DIR / "female_sportsuit01" / "female_sportsuit01.mhclo"

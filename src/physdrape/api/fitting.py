@@ -98,7 +98,7 @@ def _relax_layered(rest: np.ndarray, faces: np.ndarray, name: str, surface, *, i
     result = relax(torch.from_numpy(rest), cloth, surface, max_iters=iters, time_budget_s=time_budget_s,
                    callback=iteration_progress("fit: relaxing on the body"))
     stats = {"iterations": len(result.history) - 1, "reason": result.reason, "wall_time_s": result.wall_time,
-             "residual": float(result.residual[0]), "layer_pairs": int(len(pairs)),
+             "residual": float(result.residual[0]), "layer_pairs": len(pairs),
              "energy_J": {k: float(v[0]) for k, v in result.energy_terms.items()}}
     return result.x.numpy(), stats
 
