@@ -169,7 +169,7 @@ class DrapePipeline:
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
         self._closures: dict[str, np.ndarray] = {}
-        self._layer_pairs: dict[str, np.ndarray] = {}
+        self._layer_pairs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
@@ -267,28 +267,35 @@ class DrapePipeline:
     def layer_pairs(self, template: Template) -> np.ndarray:
         """[outer, inner] vertex pairs where the template's pieces overlap on the canonical body
         (`garments.layering.layer_pairs`), (P, 2) int64 (computed once)."""
+        return self._layering(template)[0]
+
+    def _layering(self, template: Template) -> tuple[np.ndarray, np.ndarray]:
+        """The template's layer pairs and their separation on it [m] (`layering.layer_separation`)."""
         if template.key not in self._layer_pairs:
             piece = garment_parts(template.verts, template.faces).piece
             body_verts = self.body.canonical_verts(dtype=torch.float64).numpy()
-            self._layer_pairs[template.key] = layering.layer_pairs(template.verts, piece, body_verts,
-                                                                   np.asarray(self.body.faces, np.int64))
+            body_faces = np.asarray(self.body.faces, np.int64)
+            pairs = layering.layer_pairs(template.verts, piece, body_verts, body_faces)
+            self._layer_pairs[template.key] = (pairs, layering.layer_separation(template.verts, pairs, body_verts,
+                                                                                body_faces))
         return self._layer_pairs[template.key]
 
     def _layers(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> LayerOrder | None:
         """The batch's layer order: each layered job's pairs, the body normal at the inner vertex
-        at X_init, gap `DEFAULT_LAYER_GAP`, stiffness `DEFAULT_LAYER_STIFFNESS`; None when none."""
-        pairs = [torch.as_tensor(self.layer_pairs(job.template), device=batch.device) + batch.vert_offsets[k]
-                 for k, job in enumerate(jobs) if job.layers]
-        pairs = [p for p in pairs if len(p)]
-        if not pairs:
+        at X_init, the gap each pair has on the template (`LayerOrder.build`), stiffness
+        `DEFAULT_LAYER_STIFFNESS`; None when none."""
+        layered = [(k, *self._layering(job.template)) for k, job in enumerate(jobs) if job.layers]
+        layered = [(k, p, sep) for k, p, sep in layered if len(p)]
+        if not layered:
             return None
-        pairs = torch.cat(pairs)
+        pairs = torch.cat([torch.as_tensor(p, device=batch.device) + batch.vert_offsets[k] for k, p, _ in layered])
+        separation = torch.cat([torch.as_tensor(sep, dtype=x_init.dtype, device=batch.device) for _, _, sep in layered])
         body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=batch.device)
         inner = pairs[:, 1]
         with torch.no_grad():
             normal = bodies.query(x_init[inner].to(bodies.verts.dtype),
                                   body_index=body_of_job[batch.vert_garment[inner]]).normal
-        return LayerOrder.uniform(pairs, normal.to(x_init.dtype))
+        return LayerOrder.build(pairs, normal.to(x_init.dtype), separation=separation)
 
     def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
         """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to

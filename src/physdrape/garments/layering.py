@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from physdrape.garments.numpy_geometry import BodyDistance
 
-__all__ = ["layer_pairs"]
+__all__ = ["layer_pairs", "layer_separation"]
 
 
 def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray, *,
@@ -57,3 +57,12 @@ def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, bo
     inner = d[b] > d[a] + lift
     pairs = np.concatenate([np.stack([a[outer], b[outer]], 1), np.stack([b[inner], a[inner]], 1)])
     return np.unique(pairs.astype(np.int64), axis=0).reshape(-1, 2)
+
+
+def layer_separation(verts: np.ndarray, pairs: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray) -> np.ndarray:
+    """How much farther from the body each pair's outer vertex is than its inner one on the
+    template [m] (P,): the separation the layers were authored with."""
+    if len(pairs) == 0:
+        return np.zeros(0)
+    d = BodyDistance(body_verts, body_faces)(np.asarray(verts, np.float64))[0]
+    return d[pairs[:, 0]] - d[pairs[:, 1]]

@@ -20,13 +20,15 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "LayerOrder", "layer_energy", "layer_forces",
+__all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "MIN_LAYER_GAP", "LayerOrder", "layer_energy", "layer_forces",
            "layer_pair_blocks"]
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
 #: Least normal separation δ kept between the layers [m] (fabric and the air between layers).
 DEFAULT_LAYER_GAP = 4e-3
+#: Least gap [m] of a pair authored closer than `DEFAULT_LAYER_GAP` (`LayerOrder.build`).
+MIN_LAYER_GAP = 1e-3
 
 
 @dataclass(frozen=True)
@@ -50,12 +52,16 @@ class LayerOrder:
                           self.gap.to(device=device, dtype=dtype), self.stiffness.to(device=device, dtype=dtype))
 
     @staticmethod
-    def uniform(pairs: Tensor, normal: Tensor, *, gap: float = DEFAULT_LAYER_GAP,
-                stiffness: float = DEFAULT_LAYER_STIFFNESS) -> LayerOrder:
-        """Pairs (P, 2) with their inner normals (P, 3), one gap [m] and stiffness [N/m] for all."""
+    def build(pairs: Tensor, normal: Tensor, *, separation: Tensor | None = None,
+              stiffness: float = DEFAULT_LAYER_STIFFNESS) -> LayerOrder:
+        """Pairs (P, 2) with their inner normals (P, 3) and one stiffness [N/m]. The gap of a pair is
+        its `separation` on the template [m] (P,) clamped to [`MIN_LAYER_GAP`, `DEFAULT_LAYER_GAP`]
+        (layers authored closer than the default stay as close, not pushed apart), or
+        `DEFAULT_LAYER_GAP` without it."""
         full = torch.ones(len(pairs), dtype=normal.dtype, device=normal.device)
-        return LayerOrder(pairs=pairs.to(device=normal.device), normal=normal, gap=gap * full,
-                          stiffness=stiffness * full)
+        gap = DEFAULT_LAYER_GAP * full if separation is None else separation.to(full).clamp(MIN_LAYER_GAP,
+                                                                                            DEFAULT_LAYER_GAP)
+        return LayerOrder(pairs=pairs.to(device=normal.device), normal=normal, gap=gap, stiffness=stiffness * full)
 
     @staticmethod
     def cat(parts: list[LayerOrder]) -> LayerOrder:
