@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from physdrape.api import DrapeError
+from physdrape.garments import layering
 from physdrape.garments.pieces import garment_parts
+from physdrape.physics.layers import DEFAULT_LAYER_GAP, MIN_LAYER_GAP
 from physdrape.pipeline import Job
 
 SUIT = Path(__file__).resolve().parents[3] / "shared" / "data" / "makehuman_cc0" / "male_casualsuit04" / "male_casualsuit04.mhclo"
@@ -35,6 +37,11 @@ def test_pipeline_layers_the_tee_over_the_trousers(draper):
     offset = int(inp.garments.vert_offsets[1])
     np.testing.assert_array_equal(layers.pairs.numpy(), pairs + offset)  # the one-piece tee has none
     torch.testing.assert_close(layers.normal.norm(dim=-1), torch.ones(len(pairs), dtype=layers.normal.dtype))
+    # each pair keeps the gap it has on the template, within [MIN_LAYER_GAP, DEFAULT_LAYER_GAP]
+    separation = layering.layer_separation(suit.verts, pairs, body.canonical_verts(dtype=torch.float64).numpy(),
+                                           np.asarray(body.faces, np.int64))
+    np.testing.assert_allclose(layers.gap.numpy(), np.clip(separation, MIN_LAYER_GAP, DEFAULT_LAYER_GAP))
+    assert (layers.gap < DEFAULT_LAYER_GAP).any() and (layers.gap == DEFAULT_LAYER_GAP).any()
     assert pipeline.build([Job(suit, 0, material)], state).cloth.layers is None
 
 

@@ -24,6 +24,9 @@ from physdrape.physics import (
     relax,
 )
 from physdrape.physics.layers import (
+    DEFAULT_LAYER_GAP,
+    DEFAULT_LAYER_STIFFNESS,
+    MIN_LAYER_GAP,
     LayerOrder,
     layer_energy,
     layer_forces,
@@ -114,3 +117,12 @@ def test_oracle_keeps_the_outer_sheet_outside():
 
     assert float(separation(held).min()) > 0.9e-3
     assert float(separation(free).max()) < -2e-3
+
+
+def test_layer_order_keeps_the_template_gap_within_bounds():
+    pairs = torch.tensor([[0, 1], [2, 3], [4, 5]])
+    normal = torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64).expand(3, 3)
+    built = LayerOrder.build(pairs, normal, separation=torch.tensor([2e-4, 2e-3, 1e-2], dtype=torch.float64))
+    torch.testing.assert_close(built.gap, torch.tensor([MIN_LAYER_GAP, 2e-3, DEFAULT_LAYER_GAP], dtype=torch.float64))
+    assert built.stiffness.tolist() == [DEFAULT_LAYER_STIFFNESS] * 3
+    assert LayerOrder.build(pairs, normal).gap.tolist() == [DEFAULT_LAYER_GAP] * 3

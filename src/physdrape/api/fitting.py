@@ -82,7 +82,11 @@ def _relax_layered(rest: np.ndarray, faces: np.ndarray, name: str, surface, *, i
                    time_budget_s: float):
     """Relax the garment on the canonical body (`physics.relax`, `rest` as rest state) with the
     drape's layer order (`garments.layering`, the body normal at each inner vertex, the gap each
-    pair has on `rest`) keeping its outer pieces outside the inner ones. Returns (positions [m] (V, 3), the relaxation's stats)."""
+    pair has on `rest`) keeping its outer pieces outside the inner ones.
+
+    Returns:
+        (positions [m] (V, 3), the relaxation's stats).
+    """
     from physdrape.garments.layering import layer_pairs, layer_separation
     from physdrape.garments.pieces import garment_parts
     from physdrape.geometry.garment import Garment

@@ -25,7 +25,8 @@ __all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "MIN_LAYER_GAP", "Lay
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
-#: Least normal separation δ kept between the layers [m] (fabric and the air between layers).
+#: Normal separation δ kept between layers authored at least this far apart [m] (fabric and the air
+#: between layers); layers authored closer keep their own separation (`LayerOrder.build`).
 DEFAULT_LAYER_GAP = 4e-3
 #: Least gap [m] of a pair authored closer than `DEFAULT_LAYER_GAP` (`LayerOrder.build`).
 MIN_LAYER_GAP = 1e-3
