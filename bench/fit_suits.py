@@ -36,6 +36,7 @@ def fit_one(path: str, units: str, iters: int, time_budget: float) -> dict:
 
     torch.set_num_threads(1)
     from physdrape.api import fit_garment
+    from physdrape.api.placement import unit_scale
     from physdrape.garments.intersections import self_intersecting_faces
     from physdrape.garments.mhclo import read_mhclo
     from physdrape.geometry.mesh import read_mesh
@@ -44,7 +45,9 @@ def fit_one(path: str, units: str, iters: int, time_budget: float) -> dict:
     result = fit_garment(path, units=units, iters=iters, time_budget_s=time_budget)
     wall = time.perf_counter() - t0
     source = Path(path)
+    # as authored, in metres (an .mhclo's .obj is in MakeHuman's decimetres)
     raw_v, raw_f = read_mesh(read_mhclo(source).obj_file if source.suffix == ".mhclo" else source)
+    raw_v = raw_v * (0.1 if source.suffix == ".mhclo" else unit_scale(units))
     untangle = result.relax.get("untangle", {})
     return {
         "file": source.name, "units": units if source.suffix != ".mhclo" else None, "valid": bool(result.ok),
