@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+from torch import Tensor
 
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.geometry.strain_limit import limit_edge_stretch, max_edge_stretch
@@ -94,3 +95,94 @@ def test_contact_never_moves_what_needs_no_limiting():
     out = limit_edge_stretch(x, e, rest, max_stretch=1.02, momentum=0.9,
                              body=BodySurface(body_v[None], body_f), margin=2e-3)
     assert torch.equal(out, x)
+
+
+def reference_limit_edge_stretch(x, edges, rest_lengths, *, max_stretch=1.5, iterations=100, relaxation=1.5,
+                                 body=None, margin=2e-3, requery_every=10, momentum=0.0):
+    """The sweeps of `limit_edge_stretch` in plain torch ops (its slow reference twin)."""
+    # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies: a
+    # 2-D index_add is much faster on CPU than one along dim -2 of a 3-D tensor.
+    shape, num_verts = x.shape, x.shape[-2]
+    flat = x.reshape(-1, 3)
+    copies = flat.shape[0] // num_verts
+    offsets = (torch.arange(copies, device=x.device) * num_verts)[:, None]
+    i = (edges[:, 0][None] + offsets).reshape(-1)
+    j = (edges[:, 1][None] + offsets).reshape(-1)
+    ends = torch.cat([i, j])
+    bound = (max_stretch * rest_lengths.to(x.dtype)).expand(*shape[:-2], edges.shape[0]).reshape(-1)
+    planes, floor = None, None
+    velocity = torch.zeros_like(flat)
+    previous = None
+    x = flat
+    for sweep in range(iterations):
+        if body is not None and sweep % requery_every == 0:
+            with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
+                query = body.query(x.detach().reshape(shape).to(body.verts.dtype))
+            planes = query.closest.reshape(-1, 3).to(x.dtype), query.normal.reshape(-1, 3).to(x.dtype)
+            if floor is None:  # never deeper than at the start, never into the margin
+                floor = query.signed_distance.reshape(-1).to(x.dtype).clamp_max(margin)
+        d = x[j] - x[i]
+        length = d.norm(dim=-1)
+        excess = (length - bound).clamp_min(0.0)
+        inside = planes is not None and bool((_depth(x, planes, floor) > 1e-2 * margin).any())
+        if not inside and not bool((excess > 1e-2 * bound).any()):
+            break
+        total = excess.sum()
+        if previous is not None and bool(total > previous):
+            velocity = torch.zeros_like(x)  # adaptive restart: the momentum overshot
+        previous = total
+        active = (excess > 0).to(x.dtype)
+        # Each end moves half the excess along the edge; corrections are averaged per vertex.
+        half = (0.5 * excess / length.clamp_min(1e-12)).unsqueeze(-1) * d
+        shift = torch.zeros_like(x).index_add_(0, ends, torch.cat([half, -half]))
+        count = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device).index_add_(0, ends, torch.cat([active, active]))
+        x_new = x + relaxation * shift / count.clamp_min(1.0).unsqueeze(-1) + momentum * velocity
+        if planes is not None:
+            x_new = x_new + _depth(x_new, planes, floor).unsqueeze(-1) * planes[1]
+        velocity = x_new - x
+        x = x_new
+    return x.reshape(shape)
+
+
+def _depth(x: Tensor, planes: tuple[Tensor, Tensor], floor: Tensor) -> Tensor:
+    """How far each vertex is below its floor (signed distance along its held closest-point
+    plane) [m], >= 0."""
+    closest, normal = planes
+    return (floor - ((x - closest) * normal).sum(-1)).clamp_min(0.0)
+
+
+@pytest.mark.parametrize("case", ["pulled", "uniform", "batch"])
+@pytest.mark.parametrize("momentum", [0.0, 0.9])
+def test_kernels_match_the_torch_reference(sheet, case, momentum):
+    v, e, rest = sheet
+    x = v.clone()
+    if case == "pulled":
+        x[55, 1] += 0.08
+    elif case == "uniform":
+        x = v * 1.3
+    else:
+        pulled = v.clone()
+        pulled[12, 1] += 0.06
+        x = torch.stack([v * 1.3, pulled])
+    before = x.clone()
+    for iterations in (3, 40):
+        fast = limit_edge_stretch(x, e, rest, max_stretch=1.02, iterations=iterations, momentum=momentum)
+        slow = reference_limit_edge_stretch(x, e, rest, max_stretch=1.02, iterations=iterations, momentum=momentum)
+        torch.testing.assert_close(fast, slow, rtol=0.0, atol=1e-12)
+    assert torch.equal(x, before)  # the input is not touched
+
+
+def test_kernels_match_the_torch_reference_with_a_body():
+    from physdrape.geometry.proximity import BodySurface
+
+    body_v, body_f = _sphere(0.1)
+    body = BodySurface(body_v[None], body_f)
+    rest_v, faces = _sphere(0.095)
+    e = torch.from_numpy(undirected_edges(faces.numpy()))
+    rest = (rest_v[e[:, 1]] - rest_v[e[:, 0]]).norm(dim=-1)
+    x = rest_v * (0.13 / 0.095)
+    kwargs = {"max_stretch": 1.02, "iterations": 60, "momentum": 0.9, "body": body, "margin": 2e-3}
+    torch.testing.assert_close(limit_edge_stretch(x, e, rest, **kwargs),
+                               reference_limit_edge_stretch(x, e, rest, **kwargs), rtol=0.0, atol=1e-12)
+    single = limit_edge_stretch(x.to(torch.float32), e, rest, **kwargs)
+    assert single.dtype == torch.float32

@@ -5,7 +5,8 @@ shoulders under raised arms, where the skin stretches severalfold), and StVK for
 thousands of times a vertex's weight. A few Jacobi sweeps of edge projection bring every edge
 back under ``max_stretch`` times its rest length, moving both ends of an edge equally along it
 and averaging the corrections per vertex; edges within the bound are untouched, so the rest of
-the drape keeps its skinned shape. Batched over leading dimensions, differentiable (plain torch ops).
+the drape keeps its skinned shape. Batched over leading dimensions; each sweep is two Warp kernels
+(CPU or CUDA, float64), not differentiated (X_init is the model's input, made without gradient).
 
 With a body, each sweep also pushes vertices closer than ``margin`` back out to it along the
 body normal (the closest-point planes are re-queried every few sweeps), so a tight bound can pull
@@ -16,10 +17,13 @@ need where the garment can ride up.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 from torch import Tensor
 
 from physdrape.geometry.proximity import BodySurface
+from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["limit_edge_stretch", "max_edge_stretch"]
 
@@ -79,52 +83,113 @@ def limit_edge_stretch(
         raise ValueError(f"requery_every must be >= 1, got {requery_every}")
     if not 0.0 <= momentum < 1.0:
         raise ValueError(f"momentum must be in [0, 1), got {momentum}")
-    # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies: a
-    # 2-D index_add is much faster on CPU than one along dim -2 of a 3-D tensor.
+    # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies, in
+    # float64 (edge lengths and plane depths at sub-micrometre precision), in two Warp kernels
+    # per sweep (`_kernels`): one over the edges, one over the vertices.
     shape, num_verts = x.shape, x.shape[-2]
-    flat = x.reshape(-1, 3)
+    flat = x.detach().reshape(-1, 3).to(torch.float64, copy=True).contiguous()  # never the caller's tensor
     copies = flat.shape[0] // num_verts
     offsets = (torch.arange(copies, device=x.device) * num_verts)[:, None]
-    i = (edges[:, 0][None] + offsets).reshape(-1)
-    j = (edges[:, 1][None] + offsets).reshape(-1)
-    ends = torch.cat([i, j])
-    bound = (max_stretch * rest_lengths.to(x.dtype)).expand(*shape[:-2], edges.shape[0]).reshape(-1)
-    planes, floor = None, None
-    velocity = torch.zeros_like(flat)
-    previous = None
-    x = flat
-    for sweep in range(iterations):
-        if body is not None and sweep % requery_every == 0:
-            with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
-                query = body.query(x.detach().reshape(shape).to(body.verts.dtype))
-            planes = query.closest.reshape(-1, 3).to(x.dtype), query.normal.reshape(-1, 3).to(x.dtype)
-            if floor is None:  # never deeper than at the start, never into the margin
-                floor = query.signed_distance.reshape(-1).to(x.dtype).clamp_max(margin)
+    ends = torch.stack([(edges[:, 0][None] + offsets).reshape(-1), (edges[:, 1][None] + offsets).reshape(-1)], 1)
+    bound = (max_stretch * rest_lengths.to(torch.float64)).expand(*shape[:-2], edges.shape[0]).reshape(-1).contiguous()
+    wp, edge_kernel, vertex_kernel, depth_kernel = _kernels()
+    device = wp.device_from_torch(x.device)
+    buffers = [torch.zeros_like(flat) for _ in range(3)]  # next positions, shift, velocity
+    count = torch.zeros(flat.shape[0], dtype=torch.float64, device=x.device)
+    stats = torch.zeros(3, dtype=torch.float64, device=x.device)  # total excess, any edge over, any vertex under
+    planes = torch.zeros(3, *flat.shape, dtype=torch.float64, device=x.device)  # closest, normal, (floor, 0, 0)
+    w = {name: wp.from_torch(t, dtype=wp.vec3d) for name, t in
+         (("x", flat), ("next", buffers[0]), ("shift", buffers[1]), ("velocity", buffers[2]),
+          ("closest", planes[0]), ("normal", planes[1]), ("floor", planes[2]))}
+    w_ends = wp.from_torch(ends.to(torch.int32).contiguous(), dtype=wp.int32)
+    w_bound, w_count = wp.from_torch(bound, dtype=wp.float64), wp.from_torch(count, dtype=wp.float64)
+    w_stats = wp.from_torch(stats, dtype=wp.float64)
+    held, previous = False, None
+    with torch_stream(x.device):
+        for sweep in range(iterations):
+            if body is not None and sweep % requery_every == 0:
+                with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
+                    query = body.query(flat.reshape(shape).to(body.verts.dtype))
+                planes[0] = query.closest.reshape(-1, 3)
+                planes[1] = query.normal.reshape(-1, 3)
+                if not held:  # never deeper than at the start, never into the margin
+                    planes[2, :, 0] = query.signed_distance.reshape(-1).to(torch.float64).clamp_max(margin)
+                held = True
+            stats.zero_()
+            wp.launch(edge_kernel, dim=ends.shape[0], device=device,
+                      inputs=[w["x"], w_ends, w_bound, w["shift"], w_count, w_stats])
+            if held:
+                wp.launch(depth_kernel, dim=flat.shape[0], device=device,
+                          inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_stats])
+            total, over, under = stats.tolist()
+            if not under and not over:
+                buffers[1].zero_()
+                break
+            if previous is not None and total > previous:
+                buffers[2].zero_()  # adaptive restart: the momentum overshot
+            previous = total
+            wp.launch(vertex_kernel, dim=flat.shape[0], device=device,
+                      inputs=[w["x"], w["shift"], w_count, w["velocity"], float(relaxation), float(momentum),
+                              w["closest"], w["normal"], w["floor"], int(held), w["next"]])
+            flat.copy_(buffers[0])
+    return flat.reshape(shape).to(x.dtype)
+
+
+@functools.cache
+def _kernels():
+    """The sweep's Warp kernels (defined on first use; Warp caches the binaries on disk).
+
+    edge: each edge longer than its bound moves both ends half the excess along it (atomically
+    summed per vertex, with the count of such edges); adds the excess to stats[0] and flags
+    stats[1] when it is over 1 % of the bound. vertex: the averaged shift times the relaxation,
+    plus momentum times the last move; with held planes, back up to the floor along the plane's
+    normal; the shift and count are cleared for the next sweep. depth: flags stats[2] when a
+    vertex is more than `tol` below its floor.
+    """
+    wp = warp()
+    f64 = wp.float64
+
+    @wp.kernel(enable_backward=False)
+    def edge_kernel(x: wp.array(dtype=wp.vec3d), ends: wp.array2d(dtype=wp.int32), bound: wp.array(dtype=wp.float64),
+                    shift: wp.array(dtype=wp.vec3d), count: wp.array(dtype=wp.float64),
+                    stats: wp.array(dtype=wp.float64)):
+        e = wp.tid()
+        i = ends[e, 0]
+        j = ends[e, 1]
         d = x[j] - x[i]
-        length = d.norm(dim=-1)
-        excess = (length - bound).clamp_min(0.0)
-        inside = planes is not None and bool((_depth(x, planes, floor) > 1e-2 * margin).any())
-        if not inside and not bool((excess > 1e-2 * bound).any()):
-            break
-        total = excess.sum()
-        if previous is not None and bool(total > previous):
-            velocity = torch.zeros_like(x)  # adaptive restart: the momentum overshot
-        previous = total
-        active = (excess > 0).to(x.dtype)
-        # Each end moves half the excess along the edge; corrections are averaged per vertex.
-        half = (0.5 * excess / length.clamp_min(1e-12)).unsqueeze(-1) * d
-        shift = torch.zeros_like(x).index_add_(0, ends, torch.cat([half, -half]))
-        count = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device).index_add_(0, ends, torch.cat([active, active]))
-        x_new = x + relaxation * shift / count.clamp_min(1.0).unsqueeze(-1) + momentum * velocity
-        if planes is not None:
-            x_new = x_new + _depth(x_new, planes, floor).unsqueeze(-1) * planes[1]
-        velocity = x_new - x
-        x = x_new
-    return x.reshape(shape)
+        length = wp.length(d)
+        excess = length - bound[e]
+        if excess > f64(0.0):
+            half = (f64(0.5) * excess / wp.max(length, f64(1e-12))) * d
+            wp.atomic_add(shift, i, half)
+            wp.atomic_sub(shift, j, half)
+            wp.atomic_add(count, i, f64(1.0))
+            wp.atomic_add(count, j, f64(1.0))
+            wp.atomic_add(stats, 0, excess)
+            if excess > f64(1e-2) * bound[e]:
+                stats[1] = f64(1.0)
 
+    @wp.kernel(enable_backward=False)
+    def vertex_kernel(x: wp.array(dtype=wp.vec3d), shift: wp.array(dtype=wp.vec3d), count: wp.array(dtype=wp.float64),
+                      velocity: wp.array(dtype=wp.vec3d), relaxation: wp.float64, momentum: wp.float64,
+                      closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
+                      floor: wp.array(dtype=wp.vec3d), held: int, out: wp.array(dtype=wp.vec3d)):
+        v = wp.tid()
+        moved = x[v] + relaxation * shift[v] / wp.max(count[v], f64(1.0)) + momentum * velocity[v]
+        if held != 0:
+            depth = floor[v][0] - wp.dot(moved - closest[v], normal[v])
+            if depth > f64(0.0):
+                moved = moved + depth * normal[v]
+        velocity[v] = moved - x[v]
+        out[v] = moved
+        shift[v] = wp.vec3d(f64(0.0), f64(0.0), f64(0.0))
+        count[v] = f64(0.0)
 
-def _depth(x: Tensor, planes: tuple[Tensor, Tensor], floor: Tensor) -> Tensor:
-    """How far each vertex is below its floor (signed distance along its held closest-point
-    plane) [m], >= 0."""
-    closest, normal = planes
-    return (floor - ((x - closest) * normal).sum(-1)).clamp_min(0.0)
+    @wp.kernel(enable_backward=False)
+    def depth_kernel(x: wp.array(dtype=wp.vec3d), closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
+                     floor: wp.array(dtype=wp.vec3d), tol: wp.float64, stats: wp.array(dtype=wp.float64)):
+        v = wp.tid()
+        if floor[v][0] - wp.dot(x[v] - closest[v], normal[v]) > tol:
+            stats[2] = f64(1.0)
+
+    return wp, edge_kernel, vertex_kernel, depth_kernel
