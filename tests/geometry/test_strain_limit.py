@@ -186,3 +186,15 @@ def test_kernels_match_the_torch_reference_with_a_body():
                                reference_limit_edge_stretch(x, e, rest, **kwargs), rtol=0.0, atol=1e-12)
     single = limit_edge_stretch(x.to(torch.float32), e, rest, **kwargs)
     assert single.dtype == torch.float32
+
+
+def test_gradients_pass_straight_through(sheet):
+    """The corrections are a fixed displacement for autograd: d(out)/d(x) is the identity."""
+    v, e, rest = sheet
+    x = v.clone()
+    x[55, 1] += 0.08
+    x.requires_grad_(True)
+    out = limit_edge_stretch(x, e, rest, max_stretch=1.5)
+    torch.testing.assert_close(out.detach(), limit_edge_stretch(x.detach(), e, rest, max_stretch=1.5))
+    (out * torch.arange(out.numel(), dtype=out.dtype).reshape(out.shape)).sum().backward()
+    torch.testing.assert_close(x.grad, torch.arange(x.numel(), dtype=x.dtype).reshape(x.shape))

@@ -189,7 +189,7 @@ class SkinningTransfer:
         _, cand = cKDTree(tri.mean(1)).query(vg, k=num_cand)
         cand = cand.reshape(num_garment, num_cand)
         # Make sure the true closest triangle is a candidate: BVH query on the canonical body.
-        from physdrape.geometry.proximity import BodySurface, SignMethod  # noqa: PLC0415
+        from physdrape.geometry.proximity import BodySurface, SignMethod
 
         vb_t, vg_t = torch.from_numpy(vb), torch.from_numpy(vg)
         closest = BodySurface(vb_t, torch.from_numpy(fb), sign_method=SignMethod.PSEUDO_NORMAL).query(vg_t).face
@@ -318,7 +318,8 @@ class SkinningTransfer:
 
         Returns:
             X_init: garment positions [m], shape (B, V, 3), in the dtype of ``body.rest_verts``;
-            differentiable w.r.t. the body tensors and ``garment_verts``.
+            differentiable w.r.t. the body tensors and ``garment_verts`` (through the skinning;
+            the strain limiting's corrections count as a fixed displacement).
         """
         rest, transforms = body.rest_verts, body.vertex_transforms
         if rest.ndim != 3 or rest.shape[1:] != (self.num_body_verts, 3):

@@ -6,7 +6,9 @@ thousands of times a vertex's weight. A few Jacobi sweeps of edge projection bri
 back under ``max_stretch`` times its rest length, moving both ends of an edge equally along it
 and averaging the corrections per vertex; edges within the bound are untouched, so the rest of
 the drape keeps its skinned shape. Batched over leading dimensions; each sweep is two Warp kernels
-(CPU or CUDA, float64), not differentiated (X_init is the model's input, made without gradient).
+(CPU or CUDA, float64). Gradients pass straight through it: the corrections it makes count as a
+fixed displacement (exact where nothing is over the bound; X_init is the model's input, made
+without gradient).
 
 With a body, each sweep also pushes vertices closer than ``margin`` back out to it along the
 body normal (the closest-point planes are re-queried every few sweeps), so a tight bound can pull
@@ -132,7 +134,9 @@ def limit_edge_stretch(
                       inputs=[w["x"], w["shift"], w_count, w["velocity"], float(relaxation), float(momentum),
                               w["closest"], w["normal"], w["floor"], int(held), w["next"]])
             flat.copy_(buffers[0])
-    return flat.reshape(shape).to(x.dtype)
+    out = flat.reshape(shape).to(x.dtype)
+    # gradients pass straight through: the limiter's corrections count as a fixed displacement
+    return x + (out - x).detach() if x.requires_grad else out
 
 
 @functools.cache
