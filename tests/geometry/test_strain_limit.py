@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+from device_params import DEVICES
 from torch import Tensor
 
 from physdrape.geometry.primitives import grid_sheet
@@ -198,3 +199,15 @@ def test_gradients_pass_straight_through(sheet):
     torch.testing.assert_close(out.detach(), limit_edge_stretch(x.detach(), e, rest, max_stretch=1.5))
     (out * torch.arange(out.numel(), dtype=out.dtype).reshape(out.shape)).sum().backward()
     torch.testing.assert_close(x.grad, torch.arange(x.numel(), dtype=x.dtype).reshape(x.shape))
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_kernels_run_on_every_device(sheet, device):
+    """The same sweeps on the CPU and on a GPU (the tensors' device), against the reference."""
+    v, e, rest = sheet
+    x = v.clone()
+    x[55, 1] += 0.08
+    out = limit_edge_stretch(x.to(device), e.to(device), rest.to(device), max_stretch=1.02, momentum=0.9)
+    assert out.device.type == device
+    torch.testing.assert_close(out.cpu(), reference_limit_edge_stretch(x, e, rest, max_stretch=1.02, momentum=0.9),
+                               rtol=0.0, atol=1e-10)
