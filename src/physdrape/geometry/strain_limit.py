@@ -5,10 +5,10 @@ shoulders under raised arms, where the skin stretches severalfold), and StVK for
 thousands of times a vertex's weight. A few Jacobi sweeps of edge projection bring every edge
 back under ``max_stretch`` times its rest length, moving both ends of an edge equally along it
 and averaging the corrections per vertex; edges within the bound are untouched, so the rest of
-the drape keeps its skinned shape. Batched over leading dimensions; each sweep is two Warp kernels
-(CPU or CUDA, float64). Gradients pass straight through it: the corrections it makes count as a
-fixed displacement (exact where nothing is over the bound; X_init is the model's input, made
-without gradient).
+the drape keeps its skinned shape. Batched over leading dimensions; each sweep is two Warp
+kernels (three with a body; CPU or CUDA, float64). Gradients pass straight through it: the
+corrections it makes count as a fixed displacement (exact where nothing is over the bound;
+X_init is the model's input, made without gradient).
 
 With a body, each sweep also pushes vertices closer than ``margin`` back out to it along the
 body normal (the closest-point planes are re-queried every few sweeps), so a tight bound can pull
@@ -86,8 +86,9 @@ def limit_edge_stretch(
     if not 0.0 <= momentum < 1.0:
         raise ValueError(f"momentum must be in [0, 1), got {momentum}")
     # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies, in
-    # float64 (edge lengths and plane depths at sub-micrometre precision), in two Warp kernels
-    # per sweep (`_kernels`): one over the edges, one over the vertices.
+    # float64 (edge lengths and plane depths at sub-micrometre precision), in Warp kernels
+    # (`_kernels`): per sweep one over the edges and one over the vertices (and, with a body, the
+    # depth check over the vertices).
     shape, num_verts = x.shape, x.shape[-2]
     flat = x.detach().reshape(-1, 3).to(torch.float64, copy=True).contiguous()  # never the caller's tensor
     copies = flat.shape[0] // num_verts
@@ -125,7 +126,6 @@ def limit_edge_stretch(
                           inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_stats])
             total, over, under = stats.tolist()
             if not under and not over:
-                buffers[1].zero_()
                 break
             if previous is not None and total > previous:
                 buffers[2].zero_()  # adaptive restart: the momentum overshot
