@@ -105,13 +105,14 @@ def untangle_garment(
     faces = np.asarray(faces, np.int64)
     q = BodyDistance(np.asarray(body_verts, np.float64), np.asarray(body_faces, np.int64))
     best = None
-    for attempt, (g, rings) in enumerate(((gap, spread_rings), *fallbacks)):
+    for attempt, (g, rings) in enumerate(((gap, spread_rings), *fallbacks), start=1):
         x, info = _untangle(verts, faces, q, margin=margin, gap=g, rounds=rounds, spread_rings=rings)
-        info.attempts, info.gap, info.spread_rings = attempt + 1, g, rings
+        info.gap, info.spread_rings = g, rings
         if best is None or info.faces_after < best[1].faces_after:
             best = (x, info)
         if info.faces_after == 0:
             break
+    best[1].attempts = attempt
     return best
 
 
