@@ -65,18 +65,24 @@ def test_momentum_pulls_a_uniform_stretch_back_faster(sheet):
     assert max_edge_stretch(converged, e, rest) < 1.02 * 1.01
 
 
-def test_the_body_holds_a_contracting_garment_out():
-    """A closed garment whose rest state (r = 9.5 cm) is smaller than the body (10 cm), skinned at
-    13 cm: unconstrained, limiting to 1.02 x rest pulls it inside (< 9.9 cm); with the body
-    every vertex stops at the margin."""
+@pytest.fixture
+def contracting_garment():
+    """A sphere body (r = 10 cm) and a closed garment with rest radius 9.5 cm skinned at 13 cm:
+    (body surface, positions, edges, rest lengths)."""
     from physdrape.geometry.proximity import BodySurface
 
     body_v, body_f = _sphere(0.1)
-    body = BodySurface(body_v[None], body_f)
     rest_v, faces = _sphere(0.095)
     e = torch.from_numpy(undirected_edges(faces.numpy()))
     rest = (rest_v[e[:, 1]] - rest_v[e[:, 0]]).norm(dim=-1)
-    x = rest_v * (0.13 / 0.095)
+    return BodySurface(body_v[None], body_f), rest_v * (0.13 / 0.095), e, rest
+
+
+def test_the_body_holds_a_contracting_garment_out(contracting_garment):
+    """A closed garment whose rest state (r = 9.5 cm) is smaller than the body (10 cm), skinned at
+    13 cm: unconstrained, limiting to 1.02 x rest pulls it inside (< 9.9 cm); with the body
+    every vertex stops at the margin."""
+    body, x, e, rest = contracting_garment
     free = limit_edge_stretch(x, e, rest, max_stretch=1.02, iterations=400, momentum=0.9)
     assert free.norm(dim=-1).max() < 0.099  # inside the 10 cm body
     held = limit_edge_stretch(x, e, rest, max_stretch=1.02, iterations=400, momentum=0.9, body=body, margin=2e-3)
@@ -173,15 +179,8 @@ def test_kernels_match_the_torch_reference(sheet, case, momentum):
     assert torch.equal(x, before)  # the input is not touched
 
 
-def test_kernels_match_the_torch_reference_with_a_body():
-    from physdrape.geometry.proximity import BodySurface
-
-    body_v, body_f = _sphere(0.1)
-    body = BodySurface(body_v[None], body_f)
-    rest_v, faces = _sphere(0.095)
-    e = torch.from_numpy(undirected_edges(faces.numpy()))
-    rest = (rest_v[e[:, 1]] - rest_v[e[:, 0]]).norm(dim=-1)
-    x = rest_v * (0.13 / 0.095)
+def test_kernels_match_the_torch_reference_with_a_body(contracting_garment):
+    body, x, e, rest = contracting_garment
     kwargs = {"max_stretch": 1.02, "iterations": 60, "momentum": 0.9, "body": body, "margin": 2e-3}
     torch.testing.assert_close(limit_edge_stretch(x, e, rest, **kwargs),
                                reference_limit_edge_stretch(x, e, rest, **kwargs), rtol=0.0, atol=1e-12)
