@@ -169,7 +169,7 @@ class DrapePipeline:
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
         self._closures: dict[str, np.ndarray] = {}
-        self._layer_pairs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._layer_pairs: dict[str, layering.LayerPairs] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
@@ -269,15 +269,13 @@ class DrapePipeline:
         (`garments.layering.layer_pairs`), (P, 2) int64 (computed once)."""
         return self._layering(template)[0]
 
-    def _layering(self, template: Template) -> tuple[np.ndarray, np.ndarray]:
-        """The template's layer pairs and their separation on it [m] (`layering.layer_separation`)."""
+    def _layering(self, template: Template) -> layering.LayerPairs:
+        """The template's layer pairs and their separation on it [m] (`layering.layer_pairs`)."""
         if template.key not in self._layer_pairs:
             piece = garment_parts(template.verts, template.faces).piece
             body_verts = self.body.canonical_verts(dtype=torch.float64).numpy()
-            body_faces = np.asarray(self.body.faces, np.int64)
-            pairs = layering.layer_pairs(template.verts, piece, body_verts, body_faces)
-            self._layer_pairs[template.key] = (pairs, layering.layer_separation(template.verts, pairs, body_verts,
-                                                                                body_faces))
+            self._layer_pairs[template.key] = layering.layer_pairs(template.verts, piece, body_verts,
+                                                                   np.asarray(self.body.faces, np.int64))
         return self._layer_pairs[template.key]
 
     def _layers(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> LayerOrder | None:

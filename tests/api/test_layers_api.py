@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from physdrape.api import DrapeError
-from physdrape.garments import layering
+from physdrape.garments.numpy_geometry import BodyDistance
 from physdrape.garments.pieces import garment_parts
 from physdrape.physics.layers import DEFAULT_LAYER_GAP, MIN_LAYER_GAP
 from physdrape.pipeline import Job
@@ -38,8 +38,8 @@ def test_pipeline_layers_the_tee_over_the_trousers(draper):
     np.testing.assert_array_equal(layers.pairs.numpy(), pairs + offset)  # the one-piece tee has none
     torch.testing.assert_close(layers.normal.norm(dim=-1), torch.ones(len(pairs), dtype=layers.normal.dtype))
     # each pair keeps the gap it has on the template, within [MIN_LAYER_GAP, DEFAULT_LAYER_GAP]
-    separation = layering.layer_separation(suit.verts, pairs, body.canonical_verts(dtype=torch.float64).numpy(),
-                                           np.asarray(body.faces, np.int64))
+    d = BodyDistance(body.canonical_verts(dtype=torch.float64).numpy(), np.asarray(body.faces, np.int64))(suit.verts)[0]
+    separation = d[pairs[:, 0]] - d[pairs[:, 1]]
     np.testing.assert_allclose(layers.gap.numpy(), np.clip(separation, MIN_LAYER_GAP, DEFAULT_LAYER_GAP))
     assert (layers.gap < DEFAULT_LAYER_GAP).any() and (layers.gap == DEFAULT_LAYER_GAP).any()
     assert pipeline.build([Job(suit, 0, material)], state).cloth.layers is None

@@ -31,11 +31,12 @@ def test_each_vertex_is_paired_with_its_nearest_vertices_of_the_other_piece():
     outer = grid + [0.0067, 0.115, 0.0067]
     verts = np.concatenate([inner, outer])
     piece = np.repeat([0, 1], len(grid))
-    one = layer_pairs(verts, piece, body_v, body_f, neighbours=1)
-    three = layer_pairs(verts, piece, body_v, body_f, neighbours=3)
+    one = layer_pairs(verts, piece, body_v, body_f, neighbours=1).pairs
+    three, separation = layer_pairs(verts, piece, body_v, body_f, neighbours=3)
     for pairs in (one, three):
         assert np.all(piece[pairs[:, 0]] == 1) and np.all(piece[pairs[:, 1]] == 0)  # outer over inner
     assert len(three) > len(one)
+    np.testing.assert_allclose(separation, 0.01, atol=1e-9)  # authored 1 cm apart above the top face
     o = 24  # an outer vertex in the middle of the grid
     dist = np.linalg.norm(inner - outer[o], axis=1)
     nearest = set(np.argsort(dist)[:3].tolist())
@@ -43,4 +44,4 @@ def test_each_vertex_is_paired_with_its_nearest_vertices_of_the_other_piece():
     assert int(np.argmin(dist)) in one[one[:, 0] == len(grid) + o, 1]
     assert not nearest <= set(one[one[:, 0] == len(grid) + o, 1].tolist())
     far = layer_pairs(verts + np.repeat([[0, 0, 0], [0, 0.1, 0]], len(grid), 0), piece, body_v, body_f)
-    assert len(far) == 0  # beyond the 4 cm radius nothing is paired
+    assert len(far.pairs) == 0 and len(far.separation) == 0  # beyond the 4 cm radius nothing is paired

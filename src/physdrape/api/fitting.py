@@ -87,20 +87,20 @@ def _relax_layered(rest: np.ndarray, faces: np.ndarray, name: str, surface, *, i
     Returns:
         (positions [m] (V, 3), the relaxation's stats).
     """
-    from physdrape.garments.layering import layer_pairs, layer_separation
+    from physdrape.garments.layering import layer_pairs
     from physdrape.garments.pieces import garment_parts
     from physdrape.geometry.garment import Garment
     from physdrape.physics import Cloth, relax
 
     cloth = Cloth.build(Garment.from_mesh(rest, faces, name=name, dtype=torch.float64))
     body_verts, body_faces = surface.verts[0].numpy(), surface.faces.numpy()
-    pairs = layer_pairs(rest, garment_parts(rest, faces).piece, body_verts, body_faces)
+    pairs, separation = layer_pairs(rest, garment_parts(rest, faces).piece, body_verts, body_faces)
     if len(pairs):
         index = torch.from_numpy(pairs)
         with torch.no_grad():
             normal = surface.query(torch.from_numpy(rest)[index[:, 1]]).normal
-        separation = torch.from_numpy(layer_separation(rest, pairs, body_verts, body_faces))
-        cloth = replace(cloth, layers=LayerOrder.build(index, normal.to(torch.float64), separation=separation))
+        cloth = replace(cloth, layers=LayerOrder.build(index, normal.to(torch.float64),
+                                                       separation=torch.from_numpy(separation)))
     result = relax(torch.from_numpy(rest), cloth, surface, max_iters=iters, time_budget_s=time_budget_s,
                    callback=iteration_progress("fit: relaxing on the body"))
     stats = {"iterations": len(result.history) - 1, "reason": result.reason, "wall_time_s": result.wall_time,

@@ -11,16 +11,27 @@ surface around it.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from physdrape.garments.numpy_geometry import BodyDistance
 
-__all__ = ["layer_pairs", "layer_separation"]
+__all__ = ["LayerPairs", "layer_pairs"]
+
+
+class LayerPairs(NamedTuple):
+    """[outer, inner] vertex pairs (P, 2) int64 and how much farther from the body each outer
+    vertex is than its inner one on the template [m] (P,): the separation the layers were
+    authored with."""
+
+    pairs: np.ndarray
+    separation: np.ndarray
 
 
 def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray, *,
-                radius: float = 0.04, lift: float = 5e-4, neighbours: int = 3) -> np.ndarray:
+                radius: float = 0.04, lift: float = 5e-4, neighbours: int = 3) -> LayerPairs:
     """[outer, inner] vertex pairs of different pieces that overlap on the template.
 
     Args:
@@ -35,12 +46,13 @@ def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, bo
             `radius`).
 
     Returns:
-        (P, 2) int64 [outer, inner], unique rows, sorted.
+        `LayerPairs`: the pairs as unique rows, sorted, and their separation.
     """
     x = np.asarray(verts, np.float64)
     piece = np.asarray(piece)
+    none = LayerPairs(np.zeros((0, 2), np.int64), np.zeros(0))
     if len(x) == 0 or piece.max(initial=0) == 0:
-        return np.zeros((0, 2), np.int64)
+        return none
     a, b = [], []
     for p in np.unique(piece):  # each vertex's nearest vertex of another piece
         own, other = np.flatnonzero(piece == p), np.flatnonzero(piece != p)
@@ -51,18 +63,11 @@ def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, bo
         b.append(other[idx[found]])
     a, b = np.concatenate(a), np.concatenate(b)
     if len(a) == 0:
-        return np.zeros((0, 2), np.int64)
+        return none
     d = BodyDistance(body_verts, body_faces)(x)[0]
     outer = d[a] > d[b] + lift
     inner = d[b] > d[a] + lift
     pairs = np.concatenate([np.stack([a[outer], b[outer]], 1), np.stack([b[inner], a[inner]], 1)])
-    return np.unique(pairs.astype(np.int64), axis=0).reshape(-1, 2)
+    pairs = np.unique(pairs.astype(np.int64), axis=0).reshape(-1, 2)
+    return LayerPairs(pairs, d[pairs[:, 0]] - d[pairs[:, 1]])
 
-
-def layer_separation(verts: np.ndarray, pairs: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray) -> np.ndarray:
-    """How much farther from the body each pair's outer vertex is than its inner one on the
-    template [m] (P,): the separation the layers were authored with."""
-    if len(pairs) == 0:
-        return np.zeros(0)
-    d = BodyDistance(body_verts, body_faces)(np.asarray(verts, np.float64))[0]
-    return d[pairs[:, 0]] - d[pairs[:, 1]]
