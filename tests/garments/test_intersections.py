@@ -1,9 +1,10 @@
 """The garment-side queries: ray hits, self-intersections, and the numpy front-ends."""
 
 import numpy as np
+import pytest
 import torch
 
-from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces
+from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces, self_intersecting_pairs
 from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
 from physdrape.geometry.garment import vertex_normals as torch_vertex_normals
 
@@ -29,6 +30,23 @@ def test_no_self_intersection_on_a_closed_cube():
     v, f = _cube()
     assert len(self_intersecting_faces(v, f)) == 0
     assert len(self_intersecting_faces(v, f[:0])) == 0
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_layered_triangles_a_few_millimetres_apart_do_not_intersect(scale):
+    """A top's triangle over a waistband's, from a drape [m] (translated, rounded to 0.1 mm): each
+    lies wholly on one side of the other's plane, 0.3–4 mm away, so they do not intersect, at any
+    scale; a triangle pushed through the first does, at any scale. (Warp's triangle test snaps
+    plane distances below an absolute 1e-6, in units of twice the area times the distance, to
+    zero: unscaled, such centimetre triangles in metres read as touching.)"""
+    top = np.array([[0.0, 0.0, 0.0], [-0.007, -0.0034, -0.0053], [0.0159, -0.0048, 0.0097]])
+    band = np.array([[0.0246, -0.0058, 0.0106], [-0.0088, -0.0007, -0.0107], [0.0131, -0.0048, 0.0049]])
+    normal = np.cross(top[1] - top[0], top[2] - top[0])
+    normal /= np.linalg.norm(normal)
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    assert len(self_intersecting_pairs(np.concatenate([top, band]) * scale, faces)) == 0
+    through = band - normal * ((band - top[0]) @ normal).mean()  # its centre moved onto the top's plane
+    assert self_intersecting_pairs(np.concatenate([top, through]) * scale, faces).tolist() == [[0, 1]]
 
 
 def test_body_distance_sign_and_normal():

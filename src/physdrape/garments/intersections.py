@@ -66,10 +66,19 @@ def _warp():
                         if faces[i, r] == faces[j, s]:
                             shared = shared + 1
                 if shared == 0:
+                    # Relative to a0 and in units of the pair's longest edge: wp.intersect_tri_tri
+                    # snaps plane distances (scaled by twice the triangle's area) below an absolute
+                    # 1e-6 to zero, which in metres calls centimetre triangles millimetres apart
+                    # touching.
                     b0 = points[faces[j, 0]]
                     b1 = points[faces[j, 1]]
                     b2 = points[faces[j, 2]]
-                    if wp.intersect_tri_tri(a0, a1, a2, b0, b1, b2) != 0:
+                    size = wp.max(wp.max(wp.max(wp.length(a1 - a0), wp.length(a2 - a1)), wp.length(a0 - a2)),
+                                  wp.max(wp.max(wp.length(b1 - b0), wp.length(b2 - b1)), wp.length(b0 - b2)))
+                    unit = 1.0 / wp.max(size, 1e-12)
+                    zero = wp.vec3(0.0, 0.0, 0.0)
+                    if wp.intersect_tri_tri(zero, (a1 - a0) * unit, (a2 - a0) * unit, (b0 - a0) * unit, (b1 - a0) * unit,
+                                            (b2 - a0) * unit) != 0:
                         k = wp.atomic_add(count, 0, 1)
                         if k < pairs.shape[0]:
                             pairs[k, 0] = i

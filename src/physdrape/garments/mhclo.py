@@ -189,10 +189,7 @@ def load_mhclo(
         )
         g.meta["resolved_verts"] = int(moved)
         if untangle:
-            # the default setting only: the wider-gap fallbacks separate male_casualsuit05's layers
-            # but move its shirt front aside, baring the chest in every drape
-            verts, info = untangle_garment(g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin,
-                                           fallbacks=())
+            verts, info = untangle_garment(g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin)
             if info.faces_after == 0:  # a partial untangle can leave a layer moved aside (an open front)
                 g.verts = verts
             g.meta["untangled"] = info.as_dict() | {"kept": info.faces_after == 0}

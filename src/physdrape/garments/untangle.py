@@ -14,9 +14,6 @@ where it is:
    out to the margin along the sheet normal;
 3. every vertex closer to the body than the margin is put at margin + 0.5 mm (first, and after
    every round).
-
-When crossings are left, the whole untangling is tried again from the input with a few other
-settings of the gap and of the rings a move is spread over (`FALLBACKS`).
 """
 
 from __future__ import annotations
@@ -35,7 +32,7 @@ __all__ = ["UntangleInfo", "untangle_garment"]
 @dataclass
 class UntangleInfo:
     """What `untangle_garment` did: crossing faces before/after, rounds run, moved vertices, and
-    the settings that gave it (the gap [m], the spread rings, how many settings were tried)."""
+    its settings (the gap [m], the spread rings)."""
 
     faces_before: int
     faces_after: int
@@ -43,13 +40,12 @@ class UntangleInfo:
     moved_verts: int
     gap: float = 0.0
     spread_rings: int = 0
-    attempts: int = 1
 
     def as_dict(self) -> dict:
         return {"self_intersecting_faces_before": self.faces_before,
                 "self_intersecting_faces_after": self.faces_after,
                 "rounds": self.rounds, "moved_verts": self.moved_verts, "gap_m": self.gap,
-                "spread_rings": self.spread_rings, "attempts": self.attempts}
+                "spread_rings": self.spread_rings}
 
 
 def _adjacency(num_verts: int, faces: np.ndarray):
@@ -66,12 +62,6 @@ def _push_out(x: np.ndarray, q, margin: float) -> np.ndarray:
     return x
 
 
-#: (gap [m], spread_rings) tried in turn, from the input, when the requested ones leave crossings:
-#: a wider gap moved over fewer rings separates parallel layers that the default keeps pushing
-#: into each other (two layers of a sleeve on the forearm, a tie's knot under a collar).
-FALLBACKS = ((6e-3, 1), (6e-3, 2), (4e-3, 1))
-
-
 def untangle_garment(
     verts: np.ndarray,
     faces: np.ndarray,
@@ -82,7 +72,6 @@ def untangle_garment(
     gap: float = 2e-3,
     rounds: int = 40,
     spread_rings: int = 3,
-    fallbacks: tuple[tuple[float, int], ...] = FALLBACKS,
 ) -> tuple[np.ndarray, UntangleInfo]:
     """Remove self-intersections of a garment lying on a body by local moves.
 
@@ -93,9 +82,6 @@ def untangle_garment(
         gap: distance the outer of two crossing faces is put beyond the inner one [m].
         rounds: at most this many detect-and-move rounds.
         spread_rings: rings of neighbours over which a move is faded out.
-        fallbacks: further (gap, spread_rings) settings, each tried from `verts` again while
-            crossings are left; the first that leaves none is returned, else the one that
-            leaves fewest (the earliest among equals).
 
     Returns:
         (new positions [m] (V, 3) float64, `UntangleInfo`). Vertices closer to the body than
@@ -104,21 +90,14 @@ def untangle_garment(
     """
     faces = np.asarray(faces, np.int64)
     q = BodyDistance(np.asarray(body_verts, np.float64), np.asarray(body_faces, np.int64))
-    best = None
-    for attempt, (g, rings) in enumerate(((gap, spread_rings), *fallbacks), start=1):
-        x, info = _untangle(verts, faces, q, margin=margin, gap=g, rounds=rounds, spread_rings=rings)
-        info.gap, info.spread_rings = g, rings
-        if best is None or info.faces_after < best[1].faces_after:
-            best = (x, info)
-        if info.faces_after == 0:
-            break
-    best[1].attempts = attempt
-    return best
+    x, info = _untangle(verts, faces, q, margin=margin, gap=gap, rounds=rounds, spread_rings=spread_rings)
+    info.gap, info.spread_rings = gap, spread_rings
+    return x, info
 
 
 def _untangle(verts: np.ndarray, faces: np.ndarray, q: BodyDistance, *, margin: float, gap: float, rounds: int,
               spread_rings: int) -> tuple[np.ndarray, UntangleInfo]:
-    """One untangling with one setting (`untangle_garment`)."""
+    """`untangle_garment` on a prepared body query."""
     x = np.array(verts, np.float64)
     adj, deg = _adjacency(len(x), faces)
     start = x.copy()
