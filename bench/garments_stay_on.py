@@ -21,7 +21,9 @@ the outputs):
   waistband y) [cm]; ``band_canonical_cm`` the same on the template on the canonical body,
   ``band_canonical_pose_cm`` on the same garment draped (the same variant) on the canonical body
   in the same pose (a raised arm lifts a top on any body: what sizing must keep is the band the
-  garment has on the body it was made for);
+  garment has on the body it was made for); ``band_scaled_cm`` the band times the canonical
+  body's height over this body's (in the same pose): a garment worn at the same place on a
+  taller body bares a proportionally wider band;
 - ``front_gap_mm``: where the template's panels overlap (`garments.closures.panel_overlaps` on the
   template, the trousers excluded), how far the paired vertices have parted beyond their distance
   on the template, max(0, d − d_template), mean and largest over the pairs [mm]
@@ -66,6 +68,7 @@ DEFINITIONS = {
                "waistband's centre of max(0, lowest hem y - highest waistband y) [cm]",
     "band_canonical_cm": "the same on the template on the canonical body [cm]",
     "band_canonical_pose_cm": "the same in the drape (same variant) on the canonical body in the same pose [cm]",
+    "band_scaled_cm": "band_cm x (canonical body's height / this body's height), both in the same pose [cm]",
     "band_init_cm": "the same at X_init [cm]",
     "front_gap_mm": "where the template's panels overlap (vertex pairs of garments.closures.panel_overlaps, trousers "
                     "excluded): how far the pairs have parted beyond their distance on the template, "
@@ -105,6 +108,12 @@ def skin_band(x: np.ndarray, hem: np.ndarray | None, waistband: np.ndarray | Non
     np.maximum.at(high, sector(waistband), x[waistband, 1])
     both = np.isfinite(low) & np.isfinite(high)
     return float(np.clip(low[both] - high[both], 0.0, None).max()) if both.any() else None
+
+
+def body_height(body_verts: np.ndarray) -> float:
+    """The posed body's vertical extent [m]."""
+    y = np.asarray(body_verts, np.float64)[:, 1]
+    return float(y.max() - y.min())
 
 
 def pair_gaps(x: np.ndarray, pairs: np.ndarray, reference: np.ndarray | None = None) -> tuple[float | None, float | None]:
@@ -181,9 +190,9 @@ def markdown(record: dict) -> str:
     lines += ["", "Definitions:", ""] + [f"- **{k}**: {v}" for k, v in DEFINITIONS.items()] + [""]
     lines += ["## Summary per variant", "",
               "| variant | drape kwargs | waist drop mean [cm] | waist drop max [cm] | hem rise max [cm] | band > canonical "
-              "+ 0.5 cm | band > canonical body in the pose + 0.5 cm | band > X_init + 0.5 cm | front gap mean [mm] | front gap max [mm] | B2G max [%] | piece crossings "
+              "+ 0.5 cm | band > canonical body in the pose + 0.5 cm | band scaled to the canonical height > canonical body in the pose + 0.5 cm | band > X_init + 0.5 cm | front gap mean [mm] | front gap max [mm] | B2G max [%] | piece crossings "
               "X_init → drape (sum) | new piece crossings (sum) | wall [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for v in record["variants"]:
         rows = v["rows"]
 
@@ -194,8 +203,11 @@ def markdown(record: dict) -> str:
         over_init = sum(1 for r in rows if r.get("band_cm") is not None and r["band_cm"] > r["band_init_cm"] + 0.5)
         over_pose = sum(1 for r in rows if r.get("band_cm") is not None
                         and r["band_cm"] > r["band_canonical_pose_cm"] + 0.5)
+        over_scaled = sum(1 for r in rows if r.get("band_cm") is not None
+                          and r["band_scaled_cm"] > r["band_canonical_pose_cm"] + 0.5)
         lines.append(f"| {v['name']} | `{json.dumps(v['kwargs'])}` | {fmt(np.mean(col('waist_drop_cm')))} | "
                      f"{fmt(max(col('waist_drop_cm')))} | {fmt(max(col('hem_rise_cm')))} | {over} / {len(rows)} | {over_pose} / {len(rows)} | "
+                     f"{over_scaled} / {len(rows)} | "
                      f"{over_init} / {len(rows)} | "
                      f"{fmt(np.mean(col('front_gap_mm')) if col('front_gap_mm') else None, 1)} | "
                      f"{fmt(max(col('front_gap_max_mm')) if col('front_gap_max_mm') else None, 1)} | "
@@ -204,14 +216,14 @@ def markdown(record: dict) -> str:
     for v in record["variants"]:
         lines += ["", f"## {v['name']}", "",
                   "| suit | body | waist drop [cm] | top drop [cm] | hem rise [cm] | band [cm] (init, canonical, canonical "
-                  "body in the pose) | "
+                  "body in the pose; scaled to the canonical height) | "
                   "front gap mean / max [mm] (init) | B2G [%] | piece crossings init → drape | E_strain [J] |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for r in v["rows"]:
             lines.append(
                 f"| {r['suit']} | {r['body']} | {fmt(r.get('waist_drop_cm'))} | {fmt(r.get('waist_top_drop_cm'))} | "
                 f"{fmt(r.get('hem_rise_cm'))} | {fmt(r.get('band_cm'))} ({fmt(r.get('band_init_cm'))}, "
-                f"{fmt(r.get('band_canonical_cm'))}, {fmt(r.get('band_canonical_pose_cm'))}) | {fmt(r.get('front_gap_mm'), 1)} / {fmt(r.get('front_gap_max_mm'), 1)} "
+                f"{fmt(r.get('band_canonical_cm'))}, {fmt(r.get('band_canonical_pose_cm'))}; {fmt(r.get('band_scaled_cm'))}) | {fmt(r.get('front_gap_mm'), 1)} / {fmt(r.get('front_gap_max_mm'), 1)} "
                 f"({fmt(r.get('front_gap_init_mm'), 1)} / {fmt(r.get('front_gap_init_max_mm'), 1)}) | "
                 f"{fmt(r['b2g_percent'])} | {r['piece_x_init']} → {r['piece_x']} | {r['E_strain_J']:.3g} |")
     lines += ["", "Panel overlaps found on each template (vertex pairs; mean distance on the template):", ""]
@@ -264,11 +276,12 @@ def main(argv: list[str] | None = None) -> int:
         rows, t_start = [], time.perf_counter()
         for path in suits:
             t, parts, overlaps = templates[path]
-            canonical_band = {}  # pose -> the band on the canonical body in that pose [cm]
+            canonical_band, canonical_height = {}, {}  # per pose, on the canonical body: band [cm], height [m]
             for pose in sorted({pose for _, _, pose in BODIES}):
                 [res] = draper.drape(str(path), shape=None, pose=pose, **kwargs)
                 band = skin_band(np.asarray(res.verts, np.float64), parts.hem, parts.waistband)
                 canonical_band[pose] = None if band is None else 100 * band
+                canonical_height[pose] = body_height(res.body_verts)
             for (label, _, pose), shape in zip(BODIES, shapes):
                 t0 = time.perf_counter()
                 [res] = draper.drape(str(path), shape=shape, pose=pose, **kwargs)
@@ -276,6 +289,9 @@ def main(argv: list[str] | None = None) -> int:
                 row.update(measure(res, t, parts, overlaps))
                 row["band_canonical_cm"] = info[t.name]["band_canonical_cm"]
                 row["band_canonical_pose_cm"] = canonical_band[pose]
+                row["body_height_m"] = body_height(res.body_verts)
+                row["band_scaled_cm"] = (None if row.get("band_cm") is None
+                                         else row["band_cm"] * canonical_height[pose] / row["body_height_m"])
                 rows.append(row)
                 print(f"[{name}] {t.name} {label}: waist drop {fmt(row.get('waist_drop_cm'))} cm, band "
                       f"{fmt(row.get('band_cm'))} cm, front gap {fmt(row.get('front_gap_mm'), 1)} mm, B2G "
