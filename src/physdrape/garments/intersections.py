@@ -6,8 +6,7 @@ the garment tools need, on Warp's triangle BVH (CPU, float32: exact to ~1e-6 m):
 
 - `self_intersecting_faces`: faces of a garment crossing another face of the same garment;
 - `self_intersecting_pairs`: the crossing face pairs themselves (to untangle them);
-- `ray_hit_distances`: how far rays travel before they hit a mesh (free space in front of a body);
-- `bared_body_rays`: how much of a body a garment leaves bare, seen from the front and the back.
+- `ray_hit_distances`: how far rays travel before they hit a mesh (free space in front of a body).
 """
 
 from __future__ import annotations
@@ -16,7 +15,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["bared_body_rays", "ray_hit_distances", "self_intersecting_faces", "self_intersecting_pairs"]
+__all__ = ["self_intersecting_faces", "self_intersecting_pairs", "ray_hit_distances"]
 
 _DEVICE = "cpu"
 
@@ -159,30 +158,3 @@ def ray_hit_distances(
     t = wp.zeros(len(origins), dtype=float, device=_DEVICE)
     wp.launch(kernel, dim=len(origins), inputs=[mesh.id, o, d, float(max_t)], outputs=[t], device=_DEVICE)
     return t.numpy().astype(np.float64)
-
-
-def bared_body_rays(verts: np.ndarray, faces: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray, *,
-                    box: np.ndarray | None = None, spacing: float = 0.01) -> int:
-    """How many rays of a grid, cast along −z from the front and along +z from the back, reach the
-    body before the garment (bare skin, seen as a renderer sees it).
-
-    Args:
-        verts, faces: the garment [m]; body_verts, body_faces: the body [m] (y-up, facing +z).
-        box: the grid's extent [[x_min, y_min], [x_max, y_max]] [m] (default: the garment's);
-            give the same box to compare two shapes of one garment.
-        spacing: the grid's spacing [m].
-    """
-    verts = np.asarray(verts, np.float64)
-    box = np.stack([verts[:, :2].min(0), verts[:, :2].max(0)]) if box is None else np.asarray(box, np.float64)
-    xs, ys = (np.arange(box[0, k], box[1, k] + spacing / 2, spacing) for k in (0, 1))
-    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
-    depth = float(np.abs(np.concatenate([verts[:, 2], np.asarray(body_verts)[:, 2]])).max()) + 1.0
-    bared = 0
-    for side in (1.0, -1.0):
-        origins = np.concatenate([grid, np.full((len(grid), 1), side * depth)], 1)
-        dirs = np.tile([0.0, 0.0, -side], (len(grid), 1))
-        body = ray_hit_distances(body_verts, body_faces, origins, dirs, max_t=2 * depth)
-        cloth = (ray_hit_distances(verts, faces, origins, dirs, max_t=2 * depth) if len(faces)
-                 else np.full(len(grid), np.inf))
-        bared += int(((body < 2 * depth) & (body < cloth)).sum())
-    return bared

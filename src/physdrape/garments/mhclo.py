@@ -23,7 +23,6 @@ import torch
 
 from physdrape.body.anny_body import get_anny_body
 from physdrape.garments.generator import GarmentTemplate
-from physdrape.garments.intersections import bared_body_rays
 from physdrape.garments.numpy_geometry import BodyDistance
 from physdrape.garments.remesh import remesh
 from physdrape.garments.untangle import untangle_garment
@@ -160,8 +159,7 @@ def load_mhclo(
             (`resolve_body_penetration`); None leaves the raw refit. Tight suits refit raw
             have part of their area inside the body (MakeHuman hides the skin under them).
         untangle: after that, separate the pieces' layers where they cross (a top refit through
-            trousers; `garments.untangle.untangle_garment`), kept when no crossing is left and
-            no more of the body is bare, seen from the front and the back (`bared_body_rays`);
+            trousers; `garments.untangle.untangle_garment`), kept when no crossing is left;
             needs `resolve_margin`.
 
     Returns:
@@ -192,14 +190,9 @@ def load_mhclo(
         g.meta["resolved_verts"] = int(moved)
         if untangle:
             verts, info = untangle_garment(g.verts, g.faces, body_verts, anny.faces.numpy(), margin=resolve_margin)
-            # kept when it separates every crossing without baring skin: separating a tie from the
-            # collar it is knotted under can move it aside from the shirt's open neck
-            box = np.stack([g.verts[:, :2].min(0), g.verts[:, :2].max(0)])
-            bared = [bared_body_rays(v, g.faces, body_verts, anny.faces.numpy(), box=box) for v in (g.verts, verts)]
-            kept = info.faces_after == 0 and bared[1] <= bared[0]
-            if kept:
+            if info.faces_after == 0:  # a partial untangle can leave a layer moved aside (an open front)
                 g.verts = verts
-            g.meta["untangled"] = info.as_dict() | {"kept": kept, "bared_rays": bared}
+            g.meta["untangled"] = info.as_dict() | {"kept": info.faces_after == 0}
     return g
 
 
