@@ -256,6 +256,7 @@ class BodySurface:
         one.faces, one._edge_nbr, one._border = self.faces, self._edge_nbr, self._border
         one.verts = self.verts[index:index + 1]
         one._vertex_normals = None if self._vertex_normals is None else self._vertex_normals[index:index + 1]
+        one._face_normals = None if self._face_normals is None else self._face_normals[index:index + 1]
         one._doubtful = None if self._doubtful is None else self._doubtful[index:index + 1]
         one._points_asked = self._points_asked
         one._bvh = self._bvh.select(index)
@@ -266,6 +267,7 @@ class BodySurface:
         """(Re)build one Warp BVH per body."""
         self.verts = verts
         self._vertex_normals = None
+        self._face_normals = None
         self._doubtful = None
         self._points_asked = 0
         self._selected_from: tuple[BodySurface, int] | None = None
@@ -286,6 +288,7 @@ class BodySurface:
             return
         self.verts = verts
         self._vertex_normals = None
+        self._face_normals = None
         self._doubtful = None
         self._bvh.refit(verts)
 
@@ -345,6 +348,13 @@ class BodySurface:
                 self._vertex_normals = angle_weighted_vertex_normals(self.verts.detach(), self.faces)
         return self._vertex_normals
 
+    def _unit_face_normals(self) -> Tensor:
+        """Unit normals of all bodies' faces, shape (B, Fb, 3); cached until update()."""
+        if self._face_normals is None:
+            with torch.no_grad():
+                self._face_normals = triangle_normals(self.verts.detach()[:, self.faces])
+        return self._face_normals
+
     @torch.no_grad()
     def _pseudo_normals(self, body: Tensor, face: Tensor, bary: Tensor) -> Tensor:
         """Angle-weighted pseudo-normal of the closest feature (face, edge or vertex), shape (M, 3).
@@ -353,22 +363,21 @@ class BodySurface:
         that corner, two zeros -> the vertex (``closest_point_on_triangle`` returns exact zeros).
         Not differentiated (used for the sign, and as the direction of on-surface points).
         """
-        verts = self.verts.detach()
-        tri = self.faces[face]  # (M, 3)
-        out = triangle_normals(verts[body[:, None], tri])
+        face_normals = self._unit_face_normals()
+        out = face_normals[body, face]
         zero = bary == 0
         num_zero = zero.sum(-1)
         on_edge = num_zero == 1
         if on_edge.any():
             corner = torch.argmax(zero.to(torch.int8), dim=-1)
             nbr = self._edge_nbr[face, corner]
-            other = triangle_normals(verts[body[:, None], self.faces[nbr.clamp_min(0)]])
+            other = face_normals[body, nbr.clamp_min(0)]
             edge_n = out + torch.where((nbr >= 0)[:, None], other, torch.zeros_like(other))
             edge_n = edge_n / edge_n.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(edge_n.dtype).tiny)
             out = torch.where(on_edge[:, None], edge_n, out)
         at_vertex = num_zero >= 2
         if at_vertex.any():
-            vertex = tri.gather(1, torch.argmax(bary, dim=-1, keepdim=True))[:, 0]
+            vertex = self.faces[face].gather(1, torch.argmax(bary, dim=-1, keepdim=True))[:, 0]
             out = torch.where(at_vertex[:, None], self._vertex_pseudo_normals()[body, vertex], out)
         return out
 
