@@ -190,8 +190,9 @@ def markdown(record: dict) -> str:
     lines += ["", "Definitions:", ""] + [f"- **{k}**: {v}" for k, v in DEFINITIONS.items()] + [""]
     lines += ["## Summary per variant", "",
               "| variant | drape kwargs | waist drop mean [cm] | waist drop max [cm] | hem rise max [cm] | band > canonical "
-              "+ 0.5 cm | band > canonical body in the pose + 0.5 cm | band scaled to the canonical height > canonical body in the pose + 0.5 cm | band > X_init + 0.5 cm | front gap mean [mm] | front gap max [mm] | B2G max [%] | piece crossings "
-              "X_init → drape (sum) | new piece crossings (sum) | wall [s] |",
+              "+ 0.5 cm | band > canonical body in the pose + 0.5 cm | band scaled to the canonical height > canonical "
+              "body in the pose + 0.5 cm | band > X_init + 0.5 cm | front gap mean [mm] | front gap max [mm] | B2G max [%] "
+              "| piece crossings X_init → drape (sum) | new piece crossings (sum) | wall [s] |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for v in record["variants"]:
         rows = v["rows"]
@@ -206,8 +207,8 @@ def markdown(record: dict) -> str:
         over_scaled = sum(1 for r in rows if r.get("band_cm") is not None
                           and r["band_scaled_cm"] > r["band_canonical_pose_cm"] + 0.5)
         lines.append(f"| {v['name']} | `{json.dumps(v['kwargs'])}` | {fmt(np.mean(col('waist_drop_cm')))} | "
-                     f"{fmt(max(col('waist_drop_cm')))} | {fmt(max(col('hem_rise_cm')))} | {over} / {len(rows)} | {over_pose} / {len(rows)} | "
-                     f"{over_scaled} / {len(rows)} | "
+                     f"{fmt(max(col('waist_drop_cm')))} | {fmt(max(col('hem_rise_cm')))} | {over} / {len(rows)} | "
+                     f"{over_pose} / {len(rows)} | {over_scaled} / {len(rows)} | "
                      f"{over_init} / {len(rows)} | "
                      f"{fmt(np.mean(col('front_gap_mm')) if col('front_gap_mm') else None, 1)} | "
                      f"{fmt(max(col('front_gap_max_mm')) if col('front_gap_max_mm') else None, 1)} | "
@@ -223,7 +224,8 @@ def markdown(record: dict) -> str:
             lines.append(
                 f"| {r['suit']} | {r['body']} | {fmt(r.get('waist_drop_cm'))} | {fmt(r.get('waist_top_drop_cm'))} | "
                 f"{fmt(r.get('hem_rise_cm'))} | {fmt(r.get('band_cm'))} ({fmt(r.get('band_init_cm'))}, "
-                f"{fmt(r.get('band_canonical_cm'))}, {fmt(r.get('band_canonical_pose_cm'))}; {fmt(r.get('band_scaled_cm'))}) | {fmt(r.get('front_gap_mm'), 1)} / {fmt(r.get('front_gap_max_mm'), 1)} "
+                f"{fmt(r.get('band_canonical_cm'))}, {fmt(r.get('band_canonical_pose_cm'))}; "
+                f"{fmt(r.get('band_scaled_cm'))}) | {fmt(r.get('front_gap_mm'), 1)} / {fmt(r.get('front_gap_max_mm'), 1)} "
                 f"({fmt(r.get('front_gap_init_mm'), 1)} / {fmt(r.get('front_gap_init_max_mm'), 1)}) | "
                 f"{fmt(r['b2g_percent'])} | {r['piece_x_init']} → {r['piece_x']} | {r['E_strain_J']:.3g} |")
     lines += ["", "Panel overlaps found on each template (vertex pairs; mean distance on the template):", ""]

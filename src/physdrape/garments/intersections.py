@@ -77,8 +77,8 @@ def _warp():
                                   wp.max(wp.max(wp.length(b1 - b0), wp.length(b2 - b1)), wp.length(b0 - b2)))
                     unit = 1.0 / wp.max(size, 1e-12)
                     zero = wp.vec3(0.0, 0.0, 0.0)
-                    if wp.intersect_tri_tri(zero, (a1 - a0) * unit, (a2 - a0) * unit, (b0 - a0) * unit, (b1 - a0) * unit,
-                                            (b2 - a0) * unit) != 0:
+                    if wp.intersect_tri_tri(zero, (a1 - a0) * unit, (a2 - a0) * unit, (b0 - a0) * unit,
+                                            (b1 - a0) * unit, (b2 - a0) * unit) != 0:
                         k = wp.atomic_add(count, 0, 1)
                         if k < pairs.shape[0]:
                             pairs[k, 0] = i
