@@ -90,14 +90,6 @@ def untangle_garment(
     """
     faces = np.asarray(faces, np.int64)
     q = BodyDistance(np.asarray(body_verts, np.float64), np.asarray(body_faces, np.int64))
-    x, info = _untangle(verts, faces, q, margin=margin, gap=gap, rounds=rounds, spread_rings=spread_rings)
-    info.gap, info.spread_rings = gap, spread_rings
-    return x, info
-
-
-def _untangle(verts: np.ndarray, faces: np.ndarray, q: BodyDistance, *, margin: float, gap: float, rounds: int,
-              spread_rings: int) -> tuple[np.ndarray, UntangleInfo]:
-    """`untangle_garment` on a prepared body query."""
     x = np.array(verts, np.float64)
     adj, deg = _adjacency(len(x), faces)
     start = x.copy()
@@ -146,7 +138,7 @@ def _untangle(verts: np.ndarray, faces: np.ndarray, q: BodyDistance, *, margin: 
         pairs = self_intersecting_pairs(x, faces)
     moved = int((np.linalg.norm(x - start, axis=1) > 1e-9).sum())
     return x, UntangleInfo(faces_before=before, faces_after=len(np.unique(pairs)), rounds=done,
-                           moved_verts=moved)
+                           moved_verts=moved, gap=gap, spread_rings=spread_rings)
 
 
 def _smooth_region(x, faces, adj, deg, bad_faces, q, margin, vertex_normals, *, rings: int = 2,
