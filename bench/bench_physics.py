@@ -1,22 +1,44 @@
-"""Physics core benchmark: analytic f_int against −∇E by autograd, for garments of 1k/4k/16k vertices.
+"""Physics core benchmark: the Warp element kernels against their torch twins, for garments of
+1k, 4k and 16k vertices.
 
-Run: .venv/bin/python bench/bench_physics.py [--repeats 30] [--dtype float32] [--threads 1]
-Prints a Markdown table of medians (ms) measured side by side in one run, with the ratio
-autograd / analytic. Forward = forces only; fwd+bwd = forces and the gradient of a scalar of
-them w.r.t. x (what training needs, as the solver's output is differentiated).
+    .venv/bin/python bench/bench_physics.py [--repeats 30] [--dtype float32] [--threads 1] [--out results/bench_physics]
+
+The energies (strain per face + bending per hinge, what the solver's line search evaluates) and
+the forces (strain + bending) of `physdrape.physics` run as Warp kernels
+(`physics.element_kernels`); their torch twins (`tests/physics/element_reference.py`, the same
+formulas as batched torch ops) are what those functions were before. Forward: the values under
+no_grad (the drape). Forces fwd+bwd: the forces and the gradient of a weighted sum of them w.r.t.
+x (the Hessian–vector product training needs). The variants alternate in rounds, so machine noise
+hits all alike; the table gives medians in ms and the ratios torch / kernel, and is written with
+the command and commit to <out>.md / .json.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import shlex
 import statistics
+import sys
+from pathlib import Path
 
 import torch
+from report import source_lines, write_report
 from timing import median_ms
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "physics"))
+import element_reference as twin
 
 from physdrape.geometry.garment import Garment
 from physdrape.geometry.primitives import open_cylinder
-from physdrape.physics import Cloth, internal_energy, internal_forces
+from physdrape.physics import (
+    Cloth,
+    bend_energy,
+    bend_forces,
+    strain_energy,
+    strain_forces,
+)
+from physdrape.provenance import provenance
 
 
 def tube_garment(num_verts: int) -> Garment:
@@ -25,20 +47,46 @@ def tube_garment(num_verts: int) -> Garment:
     return Garment.from_mesh(*open_cylinder(rings, segments, radius=0.16, length=0.6), name=f"tube{num_verts}")
 
 
+def _energy(strain, bend, case):
+    x0, cloth, _ = case
+
+    def run():
+        with torch.no_grad():
+            return strain(x0, cloth).sum() + bend(x0, cloth).sum()
+    return run
+
+
+def _forces(strain, bend, case):
+    x0, cloth, _ = case
+
+    def run():
+        with torch.no_grad():
+            return strain(x0, cloth) + bend(x0, cloth)
+    return run
+
+
+def _backward(strain, bend, case):
+    x0, cloth, weights = case
+
+    def run():
+        x = x0.detach().requires_grad_()
+        ((strain(x, cloth) + bend(x, cloth)) * weights).sum().backward()
+    return run
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float32")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 4000, 16000])
+    parser.add_argument("--out", default="results/bench_physics")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.threads)
     dtype = getattr(torch, args.dtype)
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {args.dtype}, median of {args.repeats}")
-    print()
-    print("| vertices | faces | f_int analytic | −∇E autograd | ratio | f_int fwd+bwd | −∇E autograd fwd+bwd (double backward) | ratio |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    command = "python bench/bench_physics.py " + shlex.join(sys.argv[1:])
+    load = os.getloadavg()
+    rows = []
     for size in args.sizes:
         garment = tube_garment(size).to(dtype)
         cloth = Cloth.build(garment)
@@ -46,34 +94,38 @@ def main() -> None:
         x0 = garment.rest * 1.05 + 0.003 * torch.randn(garment.rest.shape, generator=gen, dtype=dtype)
         weights = torch.randn(x0.shape, generator=gen, dtype=dtype)
 
-        def analytic():
-            with torch.no_grad():
-                return internal_forces(x0, cloth)
-
-        def autograd():
-            x = x0.detach().requires_grad_()
-            (grad,) = torch.autograd.grad(internal_energy(x, cloth).sum(), x)
-            return -grad
-
-        def analytic_backward():
-            x = x0.detach().requires_grad_()
-            (internal_forces(x, cloth) * weights).sum().backward()
-
-        def autograd_backward():
-            x = x0.detach().requires_grad_()
-            (grad,) = torch.autograd.grad(internal_energy(x, cloth).sum(), x, create_graph=True)
-            (-(grad * weights).sum()).backward()
-
-        # Interleave the variants so machine noise hits all of them alike.
-        results = {name: [] for name in ("a", "g", "ab", "gb")}
+        case = (x0, cloth, weights)
+        variants = {
+            "energy_kernel": _energy(strain_energy, bend_energy, case),
+            "energy_torch": _energy(twin.strain_energy, twin.bend_energy, case),
+            "forces_kernel": _forces(strain_forces, bend_forces, case),
+            "forces_torch": _forces(twin.strain_forces, twin.bend_forces, case),
+            "backward_kernel": _backward(strain_forces, bend_forces, case),
+            "backward_torch": _backward(twin.strain_forces, twin.bend_forces, case),
+        }
+        samples = {name: [] for name in variants}
         for _ in range(3):
-            for name, fn in (("a", analytic), ("g", autograd), ("ab", analytic_backward), ("gb", autograd_backward)):
-                results[name].append(median_ms(fn, max(1, args.repeats // 3)))
-        a, g, ab, gb = (statistics.median(results[k]) for k in ("a", "g", "ab", "gb"))
-        print(
-            f"| {garment.num_verts} | {garment.num_faces} | {a:.2f} ms | {g:.2f} ms | {g / a:.2f}× "
-            f"| {ab:.2f} ms | {gb:.2f} ms | {gb / ab:.2f}× |"
-        )
+            for name, fn in variants.items():
+                samples[name].append(median_ms(fn, max(1, args.repeats // 3)))
+        med = {name: statistics.median(v) for name, v in samples.items()}
+        rows.append({"verts": garment.num_verts, "faces": garment.num_faces, "hinges": int(cloth.hinges.shape[0]),
+                     **{f"{k}_ms": v for k, v in med.items()}})
+    lines = ["# Element energies and forces: Warp kernels against their torch twins", "",
+             *source_lines(command, prov := provenance()),
+             f"{torch.get_num_threads()} torch thread(s), {args.dtype}; medians of 3 alternating rounds × "
+             f"{max(1, args.repeats // 3)} calls; load average (1/5/15 min) {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} "
+             "at the start", "",
+             "| vertices | faces | energy kernel | energy torch | ratio | forces kernel | forces torch | ratio "
+             "| forces fwd+bwd kernel | fwd+bwd torch | ratio |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        cells = []
+        for what in ("energy", "forces", "backward"):
+            k, t = r[f"{what}_kernel_ms"], r[f"{what}_torch_ms"]
+            cells += [f"{k:.2f} ms", f"{t:.2f} ms", f"{t / k:.2f}×"]
+        lines.append(f"| {r['verts']} | {r['faces']} | " + " | ".join(cells) + " |")
+    write_report(args.out, lines, {"command": command, "provenance": prov, "threads": torch.get_num_threads(),
+                                   "dtype": args.dtype, "load_average": load, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -10,12 +10,18 @@ import importlib.util
 import numpy as np
 import pytest
 import torch
+from element_reference import bend_energy, strain_energy
 
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet, open_cylinder
 from physdrape.geometry.proximity import BodySurface
-from physdrape.physics import Cloth, bend_energy, penalty_contact_energy, strain_energy
-from physdrape.physics.hessians import bend_gauss_newton_hessian, bend_hessian, project_psd, strain_hessian
+from physdrape.physics import Cloth, penalty_contact_energy
+from physdrape.physics.hessians import (
+    bend_gauss_newton_hessian,
+    bend_hessian,
+    project_psd,
+    strain_hessian,
+)
 from physdrape.physics.oracle import OracleResult, relax
 
 trimesh = pytest.importorskip("trimesh")
@@ -165,7 +171,11 @@ def test_cholmod_refactors_on_a_repeated_pattern_reanalyses_a_new_one_and_reject
     pytest.importorskip("cvxopt")
     import scipy.sparse as sp
 
-    from physdrape.physics.oracle.linalg import LinearSolver, _diagonal_positions, _SparseSolver
+    from physdrape.physics.oracle.linalg import (
+        LinearSolver,
+        _diagonal_positions,
+        _SparseSolver,
+    )
 
     rng = np.random.default_rng(5)
     solver = _SparseSolver(LinearSolver.CHOLMOD)
@@ -324,7 +334,14 @@ def test_ipc_missing_gives_install_hint(body, monkeypatch):
 
 def test_public_names():
     import physdrape.physics
-    from physdrape.physics.oracle import BendHessian, ContactMode, IterationRecord, LinearSolver, Projection, silenced
+    from physdrape.physics.oracle import (
+        BendHessian,
+        ContactMode,
+        IterationRecord,
+        LinearSolver,
+        Projection,
+        silenced,
+    )
 
     assert physdrape.physics.relax is relax
     assert {ContactMode("ipc"), Projection("always"), BendHessian("projected"), LinearSolver("superlu")}

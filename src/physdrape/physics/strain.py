@@ -1,4 +1,7 @@
-"""StVK membrane strain: energy per face and its analytic force (paper Eq. 1)."""
+"""StVK membrane strain: energy per face and its analytic force (paper Eq. 1).
+
+The energy and force run as Warp kernels (`physics.element_kernels`); the torch helpers here
+(F, G, S) serve the oracle's closed-form Hessians (`physics.hessians`)."""
 
 from __future__ import annotations
 
@@ -6,6 +9,7 @@ import torch
 from torch import Tensor
 
 from physdrape.physics.cloth import Cloth
+from physdrape.physics.element_kernels import strain_energy_per_face, strain_force
 
 
 def deformation_gradient(x: Tensor, cloth: Cloth) -> Tensor:
@@ -30,23 +34,17 @@ def stress(G: Tensor, cloth: Cloth) -> Tensor:
 
 
 def strain_energy(x: Tensor, cloth: Cloth) -> Tensor:
-    """E_strain per face = t·A·(μ‖G‖²_F + λ/2·tr(G)²) [J], x (..., V, 3) → (..., F)."""
-    G = green_strain(deformation_gradient(x, cloth))
-    trace = G[..., 0, 0] + G[..., 1, 1]
-    psi = cloth.mu * (G * G).sum((-1, -2)) + 0.5 * cloth.lam * trace * trace
-    return cloth.volume * psi
+    """E_strain per face = t·A·(μ‖G‖²_F + λ/2·tr(G)²) [J], x (..., V, 3) → (..., F).
+
+    Computed by a Warp kernel (`physics.element_kernels`); differentiable in x."""
+    return strain_energy_per_face(x, cloth.faces, cloth.rest_inv, cloth.volume, cloth.mu, cloth.lam)
 
 
 def strain_forces(x: Tensor, cloth: Cloth) -> Tensor:
     """f_i = −Σ_T V_T P_T b_{i,T} with P = F·S, S = 2μG + λ tr(G) I (paper Eq. 1) [N].
 
     b_{i,T} are the rows of Dm⁻¹ (corners 1, 2) and minus their sum (corner 0). Equal to
-    −∇E_strain; no autograd. x (..., V, 3) → (..., V, 3).
+    −∇E_strain; computed by a Warp kernel (`physics.element_kernels`), differentiable in x (its
+    backward is the Hessian–vector product). x (..., V, 3) → (..., V, 3).
     """
-    F = deformation_gradient(x, cloth)
-    S = stress(green_strain(F), cloth)
-    H = -(cloth.volume[:, None, None] * (F @ S)) @ cloth.rest_inv.transpose(-1, -2)  # (..., F, 3, 2)
-    f1, f2 = H[..., 0], H[..., 1]
-    corner = torch.stack([-(f1 + f2), f1, f2], dim=-2)  # (..., F, 3 corners, 3)
-    out = torch.zeros_like(x)
-    return out.index_add_(-2, cloth.faces.reshape(-1), corner.flatten(-3, -2))
+    return strain_force(x, cloth.faces, cloth.rest_inv, cloth.volume, cloth.mu, cloth.lam)

@@ -1,0 +1,235 @@
+"""Per-element energies and forces of the garment's membrane (StVK) and bending terms, as NVIDIA
+Warp kernels: the one implementation that `physics.strain` and `physics.bending` expose.
+
+Every solver step evaluates these energies two or three times (the line search) and the forces
+once. Written as chains of small torch ops (gathers, stacks, crosses, index_add), each of a few
+thousand elements, they cost more in per-op overhead than in arithmetic. Here each is one kernel
+launch with one thread per face or hinge, summing the forces into the vertices atomically, on the
+CPU (compiled native code) or on CUDA, wherever the tensors live.
+
+Differentiation: each kernel is wrapped in a `torch.autograd.Function` whose backward is the
+kernel's adjoint, which Warp generates from the same source. So the energies' gradient is the
+exact gradient of the energies, and the forces' backward is the exact Hessian–vector product
+(what training needs: the solver's steps are differentiated through the forces). Only x is
+differentiated; the cloth's coefficients are constants (an error says so if one asks for their
+gradient). Double backward is not supported.
+
+Numerics: the kernels compute in float64 whatever x's dtype (converting x in and the result out:
+a few thousand elements), so a float32 garment gets float32 results of float64 arithmetic. Inputs
+may carry leading batch dimensions, x (..., V, 3); the kernels launch over (batch, element).
+"""
+
+import functools
+import math
+
+import torch
+from torch import Tensor
+
+from physdrape.warp_runtime import torch_stream, warp
+
+__all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "strain_energy_per_face", "strain_force"]
+
+
+@functools.cache
+def _kernels() -> dict:
+    """Define the kernels (first call only; Warp caches the compiled code on disk)."""
+    wp = warp()
+    f64 = wp.float64
+
+    @wp.func
+    def face_columns(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                     rest_inv: wp.array(dtype=wp.mat22d), b: int, f: int):
+        """The columns c0, c1 of the deformation gradient F = Ds Dm⁻¹ of face f of garment state b."""
+        x0 = x[b, faces[f, 0]]
+        e1 = x[b, faces[f, 1]] - x0
+        e2 = x[b, faces[f, 2]] - x0
+        r = rest_inv[f]
+        return e1 * r[0, 0] + e2 * r[1, 0], e1 * r[0, 1] + e2 * r[1, 1]
+
+    @wp.kernel
+    def strain_energy_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                             rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
+                             mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
+                             out: wp.array2d(dtype=wp.float64)):
+        b, f = wp.tid()
+        c0, c1 = face_columns(x, faces, rest_inv, b, f)
+        g00 = f64(0.5) * (wp.dot(c0, c0) - f64(1.0))  # Green strain G = ½(FᵀF − I)
+        g01 = f64(0.5) * wp.dot(c0, c1)
+        g11 = f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
+        trace = g00 + g11
+        psi = mu[f] * (g00 * g00 + f64(2.0) * g01 * g01 + g11 * g11) + f64(0.5) * lam[f] * trace * trace
+        out[b, f] = volume[f] * psi
+
+    @wp.kernel
+    def strain_force_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                            rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
+                            mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
+                            out: wp.array2d(dtype=wp.vec3d)):
+        b, f = wp.tid()
+        c0, c1 = face_columns(x, faces, rest_inv, b, f)
+        g00 = f64(0.5) * (wp.dot(c0, c0) - f64(1.0))
+        g01 = f64(0.5) * wp.dot(c0, c1)
+        g11 = f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
+        m = mu[f]
+        trace = lam[f] * (g00 + g11)
+        s00 = f64(2.0) * m * g00 + trace  # second Piola–Kirchhoff stress S = 2μG + λ tr(G) I
+        s01 = f64(2.0) * m * g01
+        s11 = f64(2.0) * m * g11 + trace
+        p0 = c0 * s00 + c1 * s01  # the columns of P = F S
+        p1 = c0 * s01 + c1 * s11
+        r = rest_inv[f]
+        v = volume[f]
+        f1 = -v * (p0 * r[0, 0] + p1 * r[0, 1])  # −V P Dm⁻ᵀ: the forces on corners 1 and 2
+        f2 = -v * (p0 * r[1, 0] + p1 * r[1, 1])
+        wp.atomic_add(out, b, faces[f, 0], -(f1 + f2))
+        wp.atomic_add(out, b, faces[f, 1], f1)
+        wp.atomic_add(out, b, faces[f, 2], f2)
+
+    @wp.func
+    def hinge_angle(x0: wp.vec3d, edge: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
+        """Signed dihedral angle θ = atan2((n_a × n_b)·ê, n_a·n_b), zero when flat."""
+        return wp.atan2(wp.dot(wp.cross(n_a, n_b), edge) / wp.length(edge), wp.dot(n_a, n_b))
+
+    @wp.kernel
+    def hinge_angle_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                           out: wp.array2d(dtype=wp.float64)):
+        b, h = wp.tid()
+        x0 = x[b, hinges[h, 0]]
+        edge = x[b, hinges[h, 1]] - x0
+        out[b, h] = hinge_angle(x0, edge, wp.cross(edge, x[b, hinges[h, 2]] - x0),
+                                wp.cross(x[b, hinges[h, 3]] - x0, edge))
+
+    @wp.kernel
+    def bend_energy_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                           stiffness: wp.array(dtype=wp.float64), out: wp.array2d(dtype=wp.float64)):
+        b, h = wp.tid()
+        x0 = x[b, hinges[h, 0]]
+        edge = x[b, hinges[h, 1]] - x0
+        n_a = wp.cross(edge, x[b, hinges[h, 2]] - x0)  # |n_a| = 2 · area of face (v0, v1, v2)
+        n_b = wp.cross(x[b, hinges[h, 3]] - x0, edge)  # |n_b| = 2 · area of face (v0, v3, v1)
+        theta = hinge_angle(x0, edge, n_a, n_b)
+        out[b, h] = f64(0.5) * stiffness[h] * theta * theta
+
+    @wp.kernel
+    def bend_force_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                          stiffness: wp.array(dtype=wp.float64), out: wp.array2d(dtype=wp.vec3d)):
+        b, h = wp.tid()
+        x0 = x[b, hinges[h, 0]]
+        edge = x[b, hinges[h, 1]] - x0
+        d2 = x[b, hinges[h, 2]] - x0
+        d3 = x[b, hinges[h, 3]] - x0
+        n_a = wp.cross(edge, d2)
+        n_b = wp.cross(d3, edge)
+        theta = hinge_angle(x0, edge, n_a, n_b)
+        # ∇θ in closed form: the opposite corners move along their face normals with 1/height,
+        # the shared edge's ends take the balancing share by the corners' projections on the edge
+        edge_sq = wp.dot(edge, edge)
+        edge_len = wp.sqrt(edge_sq)
+        g2 = -(edge_len / wp.dot(n_a, n_a)) * n_a
+        g3 = -(edge_len / wp.dot(n_b, n_b)) * n_b
+        alpha_a = wp.dot(d2, edge) / edge_sq
+        alpha_b = wp.dot(d3, edge) / edge_sq
+        scale = -stiffness[h] * theta
+        wp.atomic_add(out, b, hinges[h, 0], scale * (-(f64(1.0) - alpha_a) * g2 - (f64(1.0) - alpha_b) * g3))
+        wp.atomic_add(out, b, hinges[h, 1], scale * (-alpha_a * g2 - alpha_b * g3))
+        wp.atomic_add(out, b, hinges[h, 2], scale * g2)
+        wp.atomic_add(out, b, hinges[h, 3], scale * g3)
+
+    return {"wp": wp, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
+            "hinge_angle": hinge_angle_kernel, "bend_energy": bend_energy_kernel, "bend_force": bend_force_kernel}
+
+
+_WARP_DTYPES = {  # torch dtype, trailing shape → the Warp element type of an array's entries
+    (torch.float64, ()): "float64", (torch.float64, (3,)): "vec3d", (torch.float64, (2, 2)): "mat22d",
+    (torch.int32, ()): "int32",
+}
+
+
+def _to_warp(wp, tensor: Tensor, element_dims: int):
+    dtype = getattr(wp, _WARP_DTYPES[tensor.dtype, tuple(tensor.shape[tensor.ndim - element_dims:])])
+    return wp.from_torch(tensor, dtype=dtype, requires_grad=False, return_ctype=True)
+
+
+class _ElementKernel(torch.autograd.Function):
+    """out = kernel(x, constants) with its Warp adjoint as the backward (module docstring).
+
+    x (B, V, 3) float64 contiguous; constants: the kernel's inputs after x, as (tensor, number of
+    trailing element dims) pairs; out_shape: (B, N) for per-element values or (B, V, 3) for forces.
+    """
+
+    @staticmethod
+    def forward(ctx, x: Tensor, name: str, num_elements: int, constants: tuple, out_shape: tuple) -> Tensor:
+        wp = _kernels()["wp"]
+        out = torch.zeros(out_shape, dtype=torch.float64, device=x.device)
+        if num_elements and x.shape[0]:
+            with torch_stream(x.device):
+                wp.launch(_kernels()[name], dim=(x.shape[0], num_elements), device=wp.device_from_torch(x.device),
+                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t, d) for t, d in constants)],
+                          outputs=[_to_warp(wp, out, len(out_shape) - 2)])
+        ctx.save_for_backward(x)
+        ctx.launch = (name, num_elements, constants, out_shape)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor):
+        if torch.is_grad_enabled():  # a graph of this backward (create_graph=True) would miss x
+            raise RuntimeError("the element kernels are differentiable once: their backward cannot be "
+                               "differentiated again (create_graph=True, torch.func.hessian)")
+        (x,) = ctx.saved_tensors
+        name, num_elements, constants, out_shape = ctx.launch
+        wp = _kernels()["wp"]
+        grad_x = torch.zeros_like(x)
+        if num_elements and x.shape[0]:
+            out = torch.zeros(out_shape, dtype=torch.float64, device=x.device)
+            grad_out = grad_out.to(torch.float64).contiguous()
+            # the constants' adjoints are written to scratch arrays nobody reads
+            scratch = [(torch.zeros_like(t) if t.is_floating_point() else t, d) for t, d in constants]
+            with torch_stream(x.device):
+                wp.launch(_kernels()[name], dim=(x.shape[0], num_elements), device=wp.device_from_torch(x.device),
+                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t, d) for t, d in constants)],
+                          outputs=[_to_warp(wp, out, len(out_shape) - 2)],
+                          adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t, d) for t, d in scratch)],
+                          adj_outputs=[_to_warp(wp, grad_out, len(out_shape) - 2)], adjoint=True)
+        return grad_x, None, None, None, None
+
+
+def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int], num_elements: int,
+         per_vertex: bool) -> Tensor:
+    if any(t.requires_grad for t in constants):
+        raise ValueError("the cloth's coefficients are constants of the element kernels: they are not "
+                         "differentiated (detach them, or differentiate with respect to x only)")
+    lead = x.shape[:-2]
+    num_verts = x.shape[-2]
+    batch = math.prod(lead)
+    x64 = x.reshape(batch, num_verts, 3).to(torch.float64).contiguous()
+    packed = tuple((t.to(torch.float64) if t.is_floating_point() else t.to(torch.int32)).contiguous()
+                   for t in constants)
+    out_shape = (batch, num_verts, 3) if per_vertex else (batch, num_elements)
+    out = _ElementKernel.apply(x64, name, num_elements, tuple(zip(packed, element_dims)), out_shape)
+    return out.reshape(*lead, *out_shape[1:]).to(x.dtype)
+
+
+def strain_energy_per_face(x: Tensor, faces: Tensor, rest_inv: Tensor, volume: Tensor, mu: Tensor,
+                           lam: Tensor) -> Tensor:
+    """StVK energy V (μ‖G‖²_F + λ/2 tr(G)²) per face [J], x (..., V, 3) [m] → (..., F)."""
+    return _run("strain_energy", x, [faces, rest_inv, volume, mu, lam], [0, 2, 0, 0, 0], faces.shape[0], False)
+
+
+def strain_force(x: Tensor, faces: Tensor, rest_inv: Tensor, volume: Tensor, mu: Tensor, lam: Tensor) -> Tensor:
+    """−∇ of the StVK energy [N], x (..., V, 3) [m] → (..., V, 3)."""
+    return _run("strain_force", x, [faces, rest_inv, volume, mu, lam], [0, 2, 0, 0, 0], faces.shape[0], True)
+
+
+def hinge_angles(x: Tensor, hinges: Tensor) -> Tensor:
+    """Signed dihedral angle per hinge [rad], x (..., V, 3) [m] → (..., H)."""
+    return _run("hinge_angle", x, [hinges], [0], hinges.shape[0], False)
+
+
+def bend_energy_per_hinge(x: Tensor, hinges: Tensor, stiffness: Tensor) -> Tensor:
+    """Dihedral bending energy k θ²/2 per hinge [J], x (..., V, 3) [m] → (..., H)."""
+    return _run("bend_energy", x, [hinges, stiffness], [0, 0], hinges.shape[0], False)
+
+
+def bend_force(x: Tensor, hinges: Tensor, stiffness: Tensor) -> Tensor:
+    """−∇ of the dihedral bending energy [N], x (..., V, 3) [m] → (..., V, 3)."""
+    return _run("bend_force", x, [hinges, stiffness], [0, 0], hinges.shape[0], True)
