@@ -110,7 +110,7 @@ def test_an_indefinite_coarse_matrix_is_regularised_until_it_factorises():
     from physdrape.physics.coarse_space import _regularized_cholesky
 
     block = torch.diag(torch.tensor([1.0, 2.0, -1e-4], dtype=torch.float64))  # a rounded-negative rigid mode
-    chol = _regularized_cholesky(block)
+    chol = _regularized_cholesky(block.clone())  # it overwrites its argument's diagonal
     rebuilt = chol @ chol.T
     assert torch.isfinite(chol).all() and torch.linalg.eigvalsh(rebuilt).min() > 0
     assert (rebuilt - block).abs().max() < 0.1  # the smallest regularisation that works (1e-4 x mean diag)

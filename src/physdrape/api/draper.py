@@ -33,7 +33,7 @@ from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, energy_terms, internal_forces, relax
-from physdrape.physics.metrics import drape_metrics
+from physdrape.physics.metrics import drape_metrics, faces_inside
 from physdrape.pipeline import (
     DEFAULT_DTYPE,
     POSE_DTYPE,
@@ -451,10 +451,10 @@ class Draper:
                  warm) -> list[DrapeResult]:
         """One `DrapeResult` per job (timings filled in by the caller)."""
         batch, cloth, bodies = inp.garments, inp.cloth, inp.bodies
-        metrics = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth).as_dict()
+        inside = faces_inside(x, batch, bodies, inp.body_index)
+        metrics = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside).as_dict()
         weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
         residual = batch.split((internal_forces(x, cloth).norm(dim=-1) / weight)[:, None])
-        inside = bodies.query(x[batch.faces].mean(dim=1), body_index=inp.body_index[batch.faces[:, 0]]).inside
         inside = torch.split(inside, [int(n) for n in torch.bincount(batch.face_garment, minlength=len(jobs))])
         xs, inits = batch.split(x), batch.split(inp.x_init)
         body_faces = state.faces.cpu().numpy().astype(np.int64)

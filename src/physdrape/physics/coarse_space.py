@@ -82,15 +82,17 @@ def _regularized_cholesky(block: Tensor) -> Tensor:
     (a float32 K rounds its near-null rigid modes to slightly negative). A block without stiffness
     (a garment of one patch, free of the body, moves rigidly at no cost) is regularised with
     mean(diag) = 1: its correction is then a long rigid move that the solver's step clip and line
-    search shorten like any other."""
-    if not bool(torch.isfinite(block).all()):
+    search shorten like any other. `block` is a scratch copy: its diagonal is overwritten."""
+    if not bool(torch.isfinite(block.sum())):  # a sum is finite only if every entry is
         raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
-    scale = block.diagonal().mean()
+    diagonal = block.diagonal()
+    original = diagonal.clone()
+    scale = original.mean()
     if not bool(scale > 0):  # no stiffness at all (a lone patch moving freely): any scale regularises it
         scale = torch.ones((), dtype=block.dtype, device=block.device)
-    eye = torch.eye(block.shape[0], dtype=block.dtype, device=block.device)
     for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
-        chol, info = torch.linalg.cholesky_ex(block + REGULARIZATION * 100.0 ** attempt * scale * eye)
+        diagonal.copy_(original + REGULARIZATION * 100.0 ** attempt * scale)
+        chol, info = torch.linalg.cholesky_ex(block)
         if int(info) == 0:
             return chol
     raise ValueError("CoarseSpace.factor: the coarse stiffness is not positive semi-definite even with a "

@@ -22,15 +22,22 @@ CLOSE_DISTANCE = 1e-3
 CONTACT_DISTANCE = 3e-3
 
 
-def b2g_percent(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor) -> Tensor:
+def faces_inside(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor) -> Tensor:
+    """Whether each face's centroid is inside its body, (ΣF,) bool: decided exactly by the
+    body-surface query (winding number; no margin). x [m] (ΣV, 3); body_index (ΣV,)."""
+    faces = garments.faces
+    return bodies.query(x[faces].mean(dim=1), body_index=body_index[faces[:, 0]]).inside
+
+
+def b2g_percent(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *,
+                inside: Tensor | None = None) -> Tensor:
     """Body-to-garment interpenetration: 100 · Σ_f A_f [centroid of f inside] / Σ_f A_f, per garment (G,).
 
-    Inside is decided exactly by the body-surface query (winding number; no margin). Areas are
-    rest areas. x: garment positions [m], (ΣV, 3); body_index: body of each vertex, (ΣV,).
+    Inside is `faces_inside` (or `inside`, its result for this x, when the caller has it). Areas
+    are rest areas. x: garment positions [m], (ΣV, 3); body_index: body of each vertex, (ΣV,).
     """
-    faces = garments.faces
-    centroid = x[faces].mean(dim=1)
-    inside = bodies.query(centroid, body_index=body_index[faces[:, 0]]).inside
+    if inside is None:
+        inside = faces_inside(x, garments, bodies, body_index)
     area = garments.rest_area.to(x.dtype)
     owner, count = garments.face_garment, garments.num_garments
     inside_area = x.new_zeros(count).index_add_(0, owner, area * inside.to(x.dtype))
@@ -60,9 +67,11 @@ class DrapeMetrics:
 
 
 @torch.no_grad()
-def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *, cloth: Cloth | None = None) -> DrapeMetrics:
+def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *, cloth: Cloth | None = None,
+                  inside_faces: Tensor | None = None) -> DrapeMetrics:
     """All metrics of drapes x (ΣV, 3) [m]. `cloth` gives the materials actually draped (for the
-    residual force); energies always use the default material."""
+    residual force); energies always use the default material. `inside_faces`: `faces_inside` of
+    this x, when the caller has it (else it is queried)."""
     reference = Cloth.build(garments.to(x.dtype), DEFAULT_MATERIAL)
     cloth = reference if cloth is None else cloth
     count = garments.num_garments
@@ -78,7 +87,7 @@ def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_i
     return DrapeMetrics(
         strain=reference.sum_per_garment(strain_energy(x, reference), reference.face_garment),
         bend=reference.sum_per_garment(bend_energy(x, reference), reference.hinge_garment),
-        b2g_percent=b2g_percent(x, garments, bodies, body_index),
+        b2g_percent=b2g_percent(x, garments, bodies, body_index, inside=inside_faces),
         close_percent=100.0 * close / verts_per_garment,
         residual_force=residual,
         residual_relative=relative,
