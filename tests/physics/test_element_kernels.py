@@ -92,3 +92,15 @@ def test_what_the_kernels_do_not_differentiate_is_an_error(sheet):
     mu = cloth.mu.clone().requires_grad_()
     with pytest.raises(ValueError, match="constants"):
         physics.strain_energy(x, Cloth(**{**cloth.__dict__, "mu": mu}))
+
+
+def test_cached_coefficient_copies_follow_their_tensors(sheet):
+    cloth = Cloth.build(sheet.to(torch.float32), SOFT)
+    x = deformed(sheet, seed=2).float()
+    before = physics.strain_energy(x, cloth)
+    cloth.mu.mul_(2.0)  # an in-place change must not be hidden by the float64 copy made above
+    after = physics.strain_energy(x, cloth)
+    assert not torch.equal(before, after)
+    rebuilt = Cloth.build(sheet.to(torch.float32), SOFT)
+    rebuilt.mu.mul_(2.0)
+    torch.testing.assert_close(after, physics.strain_energy(x, rebuilt), rtol=0, atol=0)

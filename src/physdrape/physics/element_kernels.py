@@ -19,8 +19,10 @@ a few thousand elements), so a float32 garment gets float32 results of float64 a
 may carry leading batch dimensions, x (..., V, 3); the kernels launch over (batch, element).
 """
 
+import collections
 import functools
 import math
+import weakref
 
 import torch
 from torch import Tensor
@@ -193,6 +195,30 @@ class _ElementKernel(torch.autograd.Function):
         return grad_x, None, None, None, None
 
 
+#: Kernel-typed copies of the cloth's coefficients (float64 / int32), by the id of the tensor they
+#: were made from: a solver evaluates the same cloth dozens of times per drape.
+_CONSTANTS: collections.OrderedDict[int, tuple[weakref.ref, int, Tensor]] = collections.OrderedDict()
+_CONSTANTS_SIZE = 256
+
+
+def _kernel_constant(t: Tensor) -> Tensor:
+    """t as float64 (floating) or int32 (integer), contiguous: t itself when it is already, else a
+    copy made once per tensor and reused while that tensor lives unmodified (its weak reference
+    and version counter are checked, so a recycled id or an in-place change makes a new copy)."""
+    target = torch.float64 if t.is_floating_point() else torch.int32
+    if t.dtype == target and t.is_contiguous():
+        return t
+    hit = _CONSTANTS.get(id(t))
+    if hit is not None and hit[0]() is t and hit[1] == t._version:
+        return hit[2]
+    out = t.to(target).contiguous()
+    _CONSTANTS[id(t)] = (weakref.ref(t), t._version, out)
+    _CONSTANTS.move_to_end(id(t))
+    while len(_CONSTANTS) > _CONSTANTS_SIZE:
+        _CONSTANTS.popitem(last=False)
+    return out
+
+
 def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int], num_elements: int,
          per_vertex: bool) -> Tensor:
     if any(t.requires_grad for t in constants):
@@ -202,8 +228,7 @@ def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int],
     num_verts = x.shape[-2]
     batch = math.prod(lead)
     x64 = x.reshape(batch, num_verts, 3).to(torch.float64).contiguous()
-    packed = tuple((t.to(torch.float64) if t.is_floating_point() else t.to(torch.int32)).contiguous()
-                   for t in constants)
+    packed = tuple(_kernel_constant(t) for t in constants)
     out_shape = (batch, num_verts, 3) if per_vertex else (batch, num_elements)
     out = _ElementKernel.apply(x64, name, num_elements, tuple(zip(packed, element_dims)), out_shape)
     return out.reshape(*lead, *out_shape[1:]).to(x.dtype)
