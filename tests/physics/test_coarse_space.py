@@ -140,3 +140,19 @@ def test_a_lone_free_patch_factorises():
     force = torch.tensor([[0.0, -1e-3, 0.0]] * 3, dtype=torch.float64)
     correction = coarse.solve(force)
     assert torch.isfinite(correction).all() and float((correction * force).sum()) > 0  # a descent direction
+
+
+def test_batches_of_one_topology_share_their_structure_and_no_other():
+    batch, cloth, x = _batch()
+    first, again = CoarseSpace(cloth), CoarseSpace(Cloth.build(batch.to(torch.float32)))
+    assert first._s is again._s  # the topology is all it depends on (not the dtype or material)
+    sheet, tube = batch.garments
+    swapped = CoarseSpace(Cloth.build(GarmentBatch.pack([tube, sheet])))
+    assert swapped._s is not first._s
+    assert CoarseSpace(cloth, smoothing=1)._s is not first._s
+    # a solve after another space of the same topology was factorised elsewhere is unaffected
+    r = torch.randn(x.shape, generator=torch.Generator().manual_seed(1), dtype=x.dtype)
+    first.factor(x)
+    expected = first.solve(r)
+    again.factor(x.float() * 1.1)
+    torch.testing.assert_close(first.solve(r), expected, rtol=0, atol=0)

@@ -33,7 +33,9 @@ CPU both copies are free.
 
 from __future__ import annotations
 
+import collections
 import hashlib
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -99,6 +101,64 @@ def _regularized_cholesky(block: Tensor) -> Tensor:
                      "regularisation of its mean diagonal (K must be a PSD majorant)")
 
 
+@dataclass(frozen=True)
+class _BatchStructure:
+    """What a packed batch's coarse space keeps of its topology: P (as 3×3 blocks, and as COO
+    rows, columns and weights on the cloth's device), each garment's coarse dofs, and where each
+    face's corner-pair blocks of K go."""
+
+    num_patches: int
+    coarse_ranges: list[tuple[int, int]]  # coarse dofs [c0, c1) of each garment
+    p3: sp.bsr_matrix
+    p3_t: sp.bsr_matrix
+    pair_cols: np.ndarray
+    pair_indptr: np.ndarray
+    pair_of_corner: Tensor
+    pair_of_vertex: Tensor
+    rows: Tensor
+    cols: Tensor
+    weights: Tensor
+
+    @staticmethod
+    def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], levels: int,
+              smoothing: int, device: torch.device) -> _BatchStructure:
+        parts, coarse_ranges, v0, f0, c0 = [], [], 0, 0, 0
+        for nv, nf in zip(vert_counts, face_counts):
+            local = faces[f0:f0 + nf] - v0
+            if nf and (local.min() < 0 or local.max() >= nv):
+                raise ValueError("CoarseSpace needs each garment's vertices and faces packed contiguously")
+            part = _garment_prolongation(np.ascontiguousarray(local), nv, levels, smoothing)
+            parts.append(part)
+            coarse_ranges.append((3 * c0, 3 * (c0 + part.shape[1])))
+            c0 += part.shape[1]
+            v0, f0 = v0 + nv, f0 + nf
+        prolong = sp.block_diag(parts, format="csr")  # (V, patches)
+        p3 = sp.kron(prolong, sp.identity(3), format="csr")  # (3V, 3·patches), dof 3·v + axis
+        # K as 3×3 blocks of the vertex pairs that share a face: where each face-corner pair goes
+        num_verts = sum(vert_counts)
+        key = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
+        pairs, where = np.unique(key, return_inverse=True)
+        coo = prolong.tocoo()
+        return _BatchStructure(
+            num_patches=prolong.shape[1],
+            coarse_ranges=coarse_ranges,
+            p3=p3.tobsr(blocksize=(3, 3)),
+            p3_t=p3.T.tobsr(blocksize=(3, 3)),
+            pair_cols=(pairs % num_verts).astype(np.int32),
+            pair_indptr=np.concatenate([[0], np.cumsum(np.bincount(pairs // num_verts, minlength=num_verts))]),
+            pair_of_corner=torch.from_numpy(where.astype(np.int32).reshape(-1, 9)).to(device),
+            pair_of_vertex=torch.from_numpy(np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))),
+            rows=torch.from_numpy(coo.row.astype(np.int64)).to(device),
+            cols=torch.from_numpy(coo.col.astype(np.int64)).to(device),
+            weights=torch.from_numpy(coo.data).to(device=device, dtype=torch.float64),
+        )
+
+
+#: Batch structures by topology (a drape of the same garments reuses its batch's structure).
+_STRUCTURES: collections.OrderedDict[tuple, _BatchStructure] = collections.OrderedDict()
+_STRUCTURES_SIZE = 16
+
+
 class CoarseSpace:
     """Smoothed-aggregation coarse space of a packed garment batch (module docstring).
 
@@ -114,64 +174,44 @@ class CoarseSpace:
             raise ValueError(f"need levels ≥ 1 and smoothing ≥ 0, got levels={levels}, smoothing={smoothing}")
         self.cloth = cloth
         faces = cloth.faces.cpu().numpy()
-        vert_counts = torch.bincount(cloth.vert_garment, minlength=cloth.num_garments).tolist()
-        face_counts = torch.bincount(cloth.face_garment, minlength=cloth.num_garments).tolist()
-        parts, v0, f0 = [], 0, 0
-        self._coarse_ranges = []  # coarse dofs [c0, c1) of each garment
-        c0 = 0
-        for nv, nf in zip(vert_counts, face_counts):
-            local = faces[f0:f0 + nf] - v0
-            if nf and (local.min() < 0 or local.max() >= nv):
-                raise ValueError("CoarseSpace needs each garment's vertices and faces packed contiguously")
-            part = _garment_prolongation(np.ascontiguousarray(local), nv, levels, smoothing)
-            parts.append(part)
-            self._coarse_ranges.append((3 * c0, 3 * (c0 + part.shape[1])))
-            c0 += part.shape[1]
-            v0, f0 = v0 + nv, f0 + nf
-        prolong = sp.block_diag(parts, format="csr")  # (V, patches)
-        self.num_patches = prolong.shape[1]
-        p3 = sp.kron(prolong, sp.identity(3), format="csr")  # (3V, 3·patches), dof 3·v + axis
-        self._p3, self._p3_t = p3.tobsr(blocksize=(3, 3)), p3.T.tobsr(blocksize=(3, 3))
-        # K as 3×3 blocks of the vertex pairs that share a face: where each face-corner pair goes
-        num_verts = cloth.num_verts
-        key = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
-        pairs, where = np.unique(key, return_inverse=True)
-        self._pair_cols = (pairs % num_verts).astype(np.int32)
-        self._pair_indptr = np.concatenate([[0], np.cumsum(np.bincount(pairs // num_verts, minlength=num_verts))])
-        self._pair_of_corner = torch.from_numpy(where.astype(np.int32).reshape(-1, 9)).to(cloth.device)
-        self._pair_of_vertex = torch.from_numpy(np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1)))
-        coo = prolong.tocoo()
-        device = cloth.device
-        self._rows = torch.from_numpy(coo.row.astype(np.int64)).to(device)
-        self._cols = torch.from_numpy(coo.col.astype(np.int64)).to(device)
-        self._weights = torch.from_numpy(coo.data).to(device=device, dtype=torch.float64)
+        vert_counts = tuple(torch.bincount(cloth.vert_garment, minlength=cloth.num_garments).tolist())
+        face_counts = tuple(torch.bincount(cloth.face_garment, minlength=cloth.num_garments).tolist())
+        key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], vert_counts, face_counts,
+               levels, smoothing, str(cloth.device))
+        if key not in _STRUCTURES:
+            _STRUCTURES[key] = _BatchStructure.build(faces, vert_counts, face_counts, levels, smoothing, cloth.device)
+            while len(_STRUCTURES) > _STRUCTURES_SIZE:
+                _STRUCTURES.popitem(last=False)
+        _STRUCTURES.move_to_end(key)
+        self._s = _STRUCTURES[key]
+        self.num_patches = self._s.num_patches
         self._factors: list[Tensor] | None = None
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): extra
         per-vertex stiffness added to K (the solver's contact blocks), or None."""
         with torch.no_grad():
-            blocks = pair_blocks(x, self.cloth, self._pair_of_corner, len(self._pair_cols))
+            blocks = pair_blocks(x, self.cloth, self._s.pair_of_corner, len(self._s.pair_cols))
             blocks = blocks.cpu()  # the Galerkin product is formed on the host (module docstring)
             if vertex_blocks is not None:
-                blocks.index_add_(0, self._pair_of_vertex, vertex_blocks.detach().double().cpu())
+                blocks.index_add_(0, self._s.pair_of_vertex, vertex_blocks.detach().double().cpu())
         n = 3 * self.cloth.num_verts
-        stiffness = sp.bsr_matrix((blocks.numpy(), self._pair_cols, self._pair_indptr), shape=(n, n))
-        coarse = (self._p3_t @ (stiffness @ self._p3)).tocsr()
+        stiffness = sp.bsr_matrix((blocks.numpy(), self._s.pair_cols, self._s.pair_indptr), shape=(n, n))
+        coarse = (self._s.p3_t @ (stiffness @ self._s.p3)).tocsr()
         device = self.cloth.device
         self._factors = [_regularized_cholesky(torch.from_numpy(coarse[c0:c1, c0:c1].toarray())).to(device)
-                         for c0, c1 in self._coarse_ranges]
+                         for c0, c1 in self._s.coarse_ranges]
 
     def solve(self, r: Tensor) -> Tensor:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""
         if self._factors is None:
             raise RuntimeError("CoarseSpace.solve before factor: call factor(x) first")
-        weights = self._weights[:, None]
-        rows, cols = self._rows, self._cols
+        weights = self._s.weights[:, None]
+        rows, cols = self._s.rows, self._s.cols
         coarse_r = torch.zeros(self.num_patches, 3, dtype=torch.float64, device=r.device)
         coarse_r = coarse_r.index_add(0, cols, weights * r.double()[rows]).reshape(-1, 1)
         parts = [torch.cholesky_solve(coarse_r[c0:c1], chol)
-                 for (c0, c1), chol in zip(self._coarse_ranges, self._factors)]
+                 for (c0, c1), chol in zip(self._s.coarse_ranges, self._factors)]
         coarse_z = torch.cat(parts).reshape(self.num_patches, 3)
         z = torch.zeros(r.shape[0], 3, dtype=torch.float64, device=r.device)
         return z.index_add(0, rows, weights * coarse_z[cols]).to(r.dtype)
