@@ -39,14 +39,28 @@ def _kernels() -> dict:
     f64 = wp.float64
 
     @wp.func
+    def deformation_columns(x0: wp.vec3d, x1: wp.vec3d, x2: wp.vec3d, r: wp.mat22d):
+        """The columns c0, c1 of the deformation gradient F = Ds Dm⁻¹ of a face with corners
+        x0, x1, x2 and Dm⁻¹ = r."""
+        e1 = x1 - x0
+        e2 = x2 - x0
+        return e1 * r[0, 0] + e2 * r[1, 0], e1 * r[0, 1] + e2 * r[1, 1]
+
+    @wp.func
+    def green_strain(c0: wp.vec3d, c1: wp.vec3d):
+        """Green strain G = ½(FᵀF − I) of F = [c0 c1]: G00, G01, G11."""
+        return f64(0.5) * (wp.dot(c0, c0) - f64(1.0)), f64(0.5) * wp.dot(c0, c1), f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
+
+    @wp.func
+    def stress(g00: wp.float64, g01: wp.float64, g11: wp.float64, mu: wp.float64, lam: wp.float64):
+        """StVK second Piola–Kirchhoff stress S = 2μG + λ tr(G) I: S00, S01, S11."""
+        trace = lam * (g00 + g11)
+        return f64(2.0) * mu * g00 + trace, f64(2.0) * mu * g01, f64(2.0) * mu * g11 + trace
+
+    @wp.func
     def face_columns(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
                      rest_inv: wp.array(dtype=wp.mat22d), b: int, f: int):
-        """The columns c0, c1 of the deformation gradient F = Ds Dm⁻¹ of face f of garment state b."""
-        x0 = x[b, faces[f, 0]]
-        e1 = x[b, faces[f, 1]] - x0
-        e2 = x[b, faces[f, 2]] - x0
-        r = rest_inv[f]
-        return e1 * r[0, 0] + e2 * r[1, 0], e1 * r[0, 1] + e2 * r[1, 1]
+        return deformation_columns(x[b, faces[f, 0]], x[b, faces[f, 1]], x[b, faces[f, 2]], rest_inv[f])
 
     @wp.kernel
     def strain_energy_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
@@ -55,9 +69,7 @@ def _kernels() -> dict:
                              out: wp.array2d(dtype=wp.float64)):
         b, f = wp.tid()
         c0, c1 = face_columns(x, faces, rest_inv, b, f)
-        g00 = f64(0.5) * (wp.dot(c0, c0) - f64(1.0))  # Green strain G = ½(FᵀF − I)
-        g01 = f64(0.5) * wp.dot(c0, c1)
-        g11 = f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
+        g00, g01, g11 = green_strain(c0, c1)
         trace = g00 + g11
         psi = mu[f] * (g00 * g00 + f64(2.0) * g01 * g01 + g11 * g11) + f64(0.5) * lam[f] * trace * trace
         out[b, f] = volume[f] * psi
@@ -69,14 +81,8 @@ def _kernels() -> dict:
                             out: wp.array2d(dtype=wp.vec3d)):
         b, f = wp.tid()
         c0, c1 = face_columns(x, faces, rest_inv, b, f)
-        g00 = f64(0.5) * (wp.dot(c0, c0) - f64(1.0))
-        g01 = f64(0.5) * wp.dot(c0, c1)
-        g11 = f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
-        m = mu[f]
-        trace = lam[f] * (g00 + g11)
-        s00 = f64(2.0) * m * g00 + trace  # second Piola–Kirchhoff stress S = 2μG + λ tr(G) I
-        s01 = f64(2.0) * m * g01
-        s11 = f64(2.0) * m * g11 + trace
+        g00, g01, g11 = green_strain(c0, c1)
+        s00, s01, s11 = stress(g00, g01, g11, mu[f], lam[f])
         p0 = c0 * s00 + c1 * s01  # the columns of P = F S
         p1 = c0 * s01 + c1 * s11
         r = rest_inv[f]
@@ -88,9 +94,23 @@ def _kernels() -> dict:
         wp.atomic_add(out, b, faces[f, 2], f2)
 
     @wp.func
-    def hinge_angle(x0: wp.vec3d, edge: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
+    def hinge_angle(edge: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
         """Signed dihedral angle θ = atan2((n_a × n_b)·ê, n_a·n_b), zero when flat."""
         return wp.atan2(wp.dot(wp.cross(n_a, n_b), edge) / wp.length(edge), wp.dot(n_a, n_b))
+
+    @wp.func
+    def angle_gradients(edge: wp.vec3d, d2: wp.vec3d, d3: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
+        """∇θ w.r.t. the hinge's vertices v0 … v3 (edge = x1 − x0, d2 = x2 − x0, d3 = x3 − x0,
+        n_a = edge × d2, n_b = d3 × edge), in closed form: the opposite corners move along their
+        face normals with 1/height, the shared edge's ends take the balancing share by the
+        corners' projections on the edge."""
+        edge_sq = wp.dot(edge, edge)
+        edge_len = wp.sqrt(edge_sq)
+        g2 = -(edge_len / wp.dot(n_a, n_a)) * n_a
+        g3 = -(edge_len / wp.dot(n_b, n_b)) * n_b
+        alpha_a = wp.dot(d2, edge) / edge_sq
+        alpha_b = wp.dot(d3, edge) / edge_sq
+        return -(f64(1.0) - alpha_a) * g2 - (f64(1.0) - alpha_b) * g3, -alpha_a * g2 - alpha_b * g3, g2, g3
 
     @wp.kernel
     def hinge_angle_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
@@ -98,7 +118,7 @@ def _kernels() -> dict:
         b, h = wp.tid()
         x0 = x[b, hinges[h, 0]]
         edge = x[b, hinges[h, 1]] - x0
-        out[b, h] = hinge_angle(x0, edge, wp.cross(edge, x[b, hinges[h, 2]] - x0),
+        out[b, h] = hinge_angle(edge, wp.cross(edge, x[b, hinges[h, 2]] - x0),
                                 wp.cross(x[b, hinges[h, 3]] - x0, edge))
 
     @wp.kernel
@@ -109,7 +129,7 @@ def _kernels() -> dict:
         edge = x[b, hinges[h, 1]] - x0
         n_a = wp.cross(edge, x[b, hinges[h, 2]] - x0)  # |n_a| = 2 · area of face (v0, v1, v2)
         n_b = wp.cross(x[b, hinges[h, 3]] - x0, edge)  # |n_b| = 2 · area of face (v0, v3, v1)
-        theta = hinge_angle(x0, edge, n_a, n_b)
+        theta = hinge_angle(edge, n_a, n_b)
         out[b, h] = f64(0.5) * stiffness[h] * theta * theta
 
     @wp.kernel
@@ -122,22 +142,16 @@ def _kernels() -> dict:
         d3 = x[b, hinges[h, 3]] - x0
         n_a = wp.cross(edge, d2)
         n_b = wp.cross(d3, edge)
-        theta = hinge_angle(x0, edge, n_a, n_b)
-        # ∇θ in closed form: the opposite corners move along their face normals with 1/height,
-        # the shared edge's ends take the balancing share by the corners' projections on the edge
-        edge_sq = wp.dot(edge, edge)
-        edge_len = wp.sqrt(edge_sq)
-        g2 = -(edge_len / wp.dot(n_a, n_a)) * n_a
-        g3 = -(edge_len / wp.dot(n_b, n_b)) * n_b
-        alpha_a = wp.dot(d2, edge) / edge_sq
-        alpha_b = wp.dot(d3, edge) / edge_sq
+        theta = hinge_angle(edge, n_a, n_b)
+        g0, g1, g2, g3 = angle_gradients(edge, d2, d3, n_a, n_b)
         scale = -stiffness[h] * theta
-        wp.atomic_add(out, b, hinges[h, 0], scale * (-(f64(1.0) - alpha_a) * g2 - (f64(1.0) - alpha_b) * g3))
-        wp.atomic_add(out, b, hinges[h, 1], scale * (-alpha_a * g2 - alpha_b * g3))
+        wp.atomic_add(out, b, hinges[h, 0], scale * g0)
+        wp.atomic_add(out, b, hinges[h, 1], scale * g1)
         wp.atomic_add(out, b, hinges[h, 2], scale * g2)
         wp.atomic_add(out, b, hinges[h, 3], scale * g3)
 
-    return {"wp": wp, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
+    return {"wp": wp, "deformation_columns": deformation_columns, "green_strain": green_strain, "stress": stress,
+            "angle_gradients": angle_gradients, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
             "hinge_angle": hinge_angle_kernel, "bend_energy": bend_energy_kernel, "bend_force": bend_force_kernel}
 
 

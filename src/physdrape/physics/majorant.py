@@ -32,6 +32,7 @@ import functools
 import torch
 from torch import Tensor
 
+from physdrape.physics import element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.warp_runtime import torch_stream, warp
 
@@ -43,6 +44,9 @@ def _kernels():
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()
     f64 = wp.float64
+    shared = element_kernels._kernels()  # the element kernels' F, G, S and ∇θ
+    deformation_columns, green_strain, stress = shared["deformation_columns"], shared["green_strain"], shared["stress"]
+    angle_gradients = shared["angle_gradients"]
 
     @wp.func
     def abs_part(s: wp.mat22d) -> wp.mat22d:
@@ -68,18 +72,11 @@ def _kernels():
     def face_state(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
                    rest_inv: wp.array(dtype=wp.mat22d), mu: wp.float64, lam: wp.float64, f: int):
         """Corner weights w_a, u_a = F w_a, |S| and F Fᵀ of face f."""
-        x0 = x[faces[f, 0]]
-        e1 = x[faces[f, 1]] - x0
-        e2 = x[faces[f, 2]] - x0
         r = rest_inv[f]
-        c0 = e1 * r[0, 0] + e2 * r[1, 0]  # the columns of F
-        c1 = e1 * r[0, 1] + e2 * r[1, 1]
-        g00 = f64(0.5) * (wp.dot(c0, c0) - f64(1.0))
-        g01 = f64(0.5) * wp.dot(c0, c1)
-        g11 = f64(0.5) * (wp.dot(c1, c1) - f64(1.0))
-        trace = lam * (g00 + g11)
-        s = wp.mat22d(f64(2.0) * mu * g00 + trace, f64(2.0) * mu * g01, f64(2.0) * mu * g01,
-                      f64(2.0) * mu * g11 + trace)
+        c0, c1 = deformation_columns(x[faces[f, 0]], x[faces[f, 1]], x[faces[f, 2]], r)  # the columns of F
+        g00, g01, g11 = green_strain(c0, c1)
+        s00, s01, s11 = stress(g00, g01, g11, mu, lam)
+        s = wp.mat22d(s00, s01, s01, s11)
         w1 = wp.vec2d(r[0, 0], r[0, 1])
         w2 = wp.vec2d(r[1, 0], r[1, 1])
         w0 = -(w1 + w2)
@@ -127,15 +124,7 @@ def _kernels():
         d3 = x[hinges[h, 3]] - x0
         n_a = wp.cross(edge, d2)
         n_b = wp.cross(d3, edge)
-        edge_sq = wp.dot(edge, edge)
-        edge_len = wp.sqrt(edge_sq)
-        # ∇θ: the opposite corners along their face normals with 1/height, the edge's ends balancing
-        g2 = -(edge_len / wp.dot(n_a, n_a)) * n_a
-        g3 = -(edge_len / wp.dot(n_b, n_b)) * n_b
-        alpha_a = wp.dot(d2, edge) / edge_sq
-        alpha_b = wp.dot(d3, edge) / edge_sq
-        g0 = -(f64(1.0) - alpha_a) * g2 - (f64(1.0) - alpha_b) * g3
-        g1 = -alpha_a * g2 - alpha_b * g3
+        g0, g1, g2, g3 = angle_gradients(edge, d2, d3, n_a, n_b)  # ∇θ
         k = stiffness[h]
         wp.atomic_add(out, hinges[h, 0], k * wp.outer(g0, g0))
         wp.atomic_add(out, hinges[h, 1], k * wp.outer(g1, g1))
