@@ -19,6 +19,8 @@ a few thousand elements), so a float32 garment gets float32 results of float64 a
 may carry leading batch dimensions, x (..., V, 3); the kernels launch over (batch, element).
 """
 
+# No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects, and
+# a function that names `wp` only in its annotations cannot resolve them from a string.
 import collections
 import functools
 import math
