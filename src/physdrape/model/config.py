@@ -27,6 +27,13 @@ class Variant(str, enum.Enum):
         return self in (Variant.GNN_COLLISION, Variant.FULL)
 
 
+class Displacement(str, enum.Enum):
+    """How the decoder's first three outputs become the move Δx of X = X_init + Δx."""
+
+    DIRECT = "direct"  # Δx = displacement_scale · output [m]
+    PRECONDITIONED = "preconditioned"  # Δx = C (force_scale · output · m g): a force field through the solver's C
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Architecture and module settings of `PhysDrape`; the defaults are the shipped model's.
@@ -49,7 +56,14 @@ class ModelConfig:
     contact_stiffness: penalty stiffness k_c [J/m³] of the solver's contact term and the training
     loss (`physics.contact`). centroid_margin: ε_c [m] of the handler's centroid pass (faces
     whose centroid is closer to the body are pushed out; 0 = the paper's vertex-only handler; see
-    `CollisionHandler`). displacement_scale: metres per unit of the decoder's Δx.
+    `CollisionHandler`).
+    displacement: how the decoder's output becomes Δx (`Displacement`). "direct": Δx =
+    displacement_scale [m] × the output. "preconditioned": the output is a force field, in units
+    of force_scale × each vertex's weight m g, and Δx is that field through the two-level solver's
+    preconditioner C at X_init (`StretchingSolver.preconditioner`: block Jacobi on the vertices'
+    stiffness plus the coarse correction on smooth patches, body contact included), so that the
+    loss's gradient reaches the network as the solver's preconditioned step, and a patch sliding
+    or riding up as a whole is a smooth force, where "direct" needs the move vertex by vertex.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -72,13 +86,19 @@ class ModelConfig:
     margin: float = DEFAULT_MARGIN
     contact_stiffness: float = DEFAULT_STIFFNESS
     centroid_margin: float = 5e-4
+    displacement: Displacement = Displacement.DIRECT
     displacement_scale: float = 0.01
+    force_scale: float = 1.0
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "variant", Variant(self.variant))
         object.__setattr__(self, "solver", SolverKind(self.solver))
+        object.__setattr__(self, "displacement", Displacement(self.displacement))
+        if self.displacement is Displacement.PRECONDITIONED and self.solver is not SolverKind.TWO_LEVEL:
+            raise ValueError("ModelConfig.displacement 'preconditioned' uses the two_level solver's preconditioner; "
+                             f"set solver: two_level (got {self.solver.value})")
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")

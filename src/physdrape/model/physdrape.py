@@ -10,7 +10,7 @@ from torch import Tensor, nn
 from physdrape.geometry.garment import GarmentBatch, GraphLevels
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model.collision_handler import CollisionHandler
-from physdrape.model.config import ModelConfig, Variant
+from physdrape.model.config import Displacement, ModelConfig, Variant
 from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, edge_features, node_features
 from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
@@ -99,9 +99,14 @@ class PhysDrape(nn.Module):
         nodes, edges, graph = self.graph_inputs(batch)
         out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), graph)
         out = out.to(x_init.dtype)
-        delta_x = cfg.displacement_scale * out[:, :3]
-        # f̂ in units of each vertex's weight: the support a vertex needs is of that order.
+        # forces in units of each vertex's weight: the support a vertex needs is of that order
         weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
+        if cfg.displacement is Displacement.PRECONDITIONED:
+            precondition = self.solver.preconditioner(x_init.detach(), batch.cloth, bodies=batch.bodies,
+                                                      body_index=batch.body_index)
+            delta_x = precondition(cfg.force_scale * out[:, :3] * weight[:, None])
+        else:
+            delta_x = cfg.displacement_scale * out[:, :3]
         f_hat = out[:, 3:] * weight[:, None]
         x_gnn = x_init + delta_x
         return self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)

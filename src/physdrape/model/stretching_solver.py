@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
+from functools import partial
 
 import torch
 from torch import Tensor, nn
@@ -136,8 +138,7 @@ class StretchingSolver(nn.Module):
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
                    bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
-        problem = _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness,
-                              band=self.contact_band)
+        problem = self._relaxation(cloth, f_hat)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         owner = cloth.vert_garment
 
@@ -156,8 +157,7 @@ class StretchingSolver(nn.Module):
             contact = problem.contact_blocks(distance)
             if refresh:
                 coarse.factor(x, contact)
-            chol = self._stiffness_factor(x.detach(), cloth, contact)
-            z = torch.cholesky_solve(force.unsqueeze(-1), chol).squeeze(-1) + coarse.solve(force)
+            z = _precondition(self._stiffness_factor(x.detach(), cloth, contact), coarse, force)
             if direction is not None:
                 with torch.no_grad():  # Polak-Ribière+, preconditioned; the history is not differentiated
                     beta = per_garment(z.detach() * (force.detach() - last_force))
@@ -178,6 +178,29 @@ class StretchingSolver(nn.Module):
             if trace is not None:
                 trace.append(x)
         return x
+
+    @torch.no_grad()
+    def preconditioner(self, x: Tensor, cloth: Cloth, *, bodies: BodySurface | None = None,
+                       body_index: Tensor | None = None) -> Callable[[Tensor], Tensor]:
+        """The two-level solver's preconditioner C at positions x (ΣV, 3) [m], as the linear map
+        of forces (ΣV, 3) [N] to moves [m] that a first solver step from x applies to F: block
+        Jacobi on the stiffness blocks plus the coarse correction, with the body contact's blocks
+        on planes queried at x (bodies / body_index as in `forward`; None: no contact).
+
+        C is built once and held constant: the map is differentiable in its argument, not in x.
+        """
+        if self.kind is not SolverKind.TWO_LEVEL:
+            raise ValueError(f"the preconditioner belongs to the two_level solver; this solver is {self.kind.value}")
+        problem = self._relaxation(cloth, None)
+        if bodies is not None:
+            problem.requery(x, bodies, body_index)
+        contact = problem.contact_blocks(problem.distance(x))
+        coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
+        coarse.factor(x, contact)
+        return partial(_precondition, self._stiffness_factor(x, cloth, contact), coarse)
+
+    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
+        return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band)
 
     @torch.no_grad()
     def _stiffness_factor(self, x: Tensor, cloth: Cloth, contact: Tensor | None) -> Tensor:
@@ -215,6 +238,12 @@ class StretchingSolver(nn.Module):
             lower = ~done & (trial < phi0)
             phi, done = torch.where(lower, trial, phi), done | lower
         return torch.where(done, alpha, torch.zeros_like(alpha)), torch.where(done, phi, phi0)
+
+
+def _precondition(stiffness_factor: Tensor, coarse: CoarseSpace, force: Tensor) -> Tensor:
+    """C F = K⁻¹ F + P (Pᵀ K P)⁻¹ Pᵀ F: forces (V, 3) [N] → moves (V, 3) [m], with K⁻¹ from the
+    per-vertex Cholesky factors (V, 3, 3) and a factored coarse space."""
+    return torch.cholesky_solve(force.unsqueeze(-1), stiffness_factor).squeeze(-1) + coarse.solve(force)
 
 
 class _Relaxation:
