@@ -12,7 +12,7 @@ from physdrape.physics.forces import internal_forces
 from physdrape.train.loss import LossConfig, drape_loss
 
 MODEL = ModelConfig(latent=16, blocks=2, levels=1, variant=Variant.GNN_ONLY, displacement="preconditioned")
-CONTACT = dict(contact_stiffness=MODEL.contact_stiffness, margin=MODEL.margin)
+CONTACT = {"contact_stiffness": MODEL.contact_stiffness, "margin": MODEL.margin}
 
 
 def _solver() -> StretchingSolver:
