@@ -10,7 +10,9 @@ vertices. Every size is timed in one run, interleaved round by round so that a c
 machine's load hits all of them alike; the table gives each size's median over the rounds, its
 ratio to the first size, the parameters, the graph reach (the mesh edges one network pass
 spans, `reach`) and, apart, the graph inputs (body query, node and edge features; the same work
-for every size). Writes <out>.md and <out>.json with the command, the commit and the load average.
+for every size) and what `displacement: preconditioned` adds to a pass: the solver's
+preconditioner built at X_init and applied to the output once (the same for every size). Writes
+<out>.md and <out>.json with the command, the commit and the load average.
 """
 
 from __future__ import annotations
@@ -69,15 +71,27 @@ def main() -> None:
             t2 = time.perf_counter()
         return 1e3 * (t1 - t0), 1e3 * (t2 - t1)
 
+    solver = next(iter(models.values())).solver
+
+    def preconditioned() -> float:
+        """The preconditioned displacement's extra work: C at X_init, applied once [ms]."""
+        t0 = time.perf_counter()
+        precondition = solver.preconditioner(batch.x_init, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
+        precondition(batch.x_init)
+        return 1e3 * (time.perf_counter() - t0)
+
     for model in models.values():
         network(model)  # warm-up: coarse graphs are built and cached per topology
+    preconditioned()
     inputs = {size: [] for size in models}
     gnn = {size: [] for size in models}
+    preconditioner = []
     for _ in range(args.repeats):
         for size, model in models.items():
             a, b = network(model)
             inputs[size].append(a)
             gnn[size].append(b)
+        preconditioner.append(preconditioned())
     first = statistics.median(gnn[args.sizes[0]])
     rows = []
     for size, model in models.items():
@@ -90,7 +104,9 @@ def main() -> None:
     command = shlex.join(["python", *sys.argv])
     record = {"command": command, "provenance": provenance(), "load_average": os.getloadavg(),
               "garment_verts": batch.garments.num_verts, "body_verts": batch.bodies.num_verts,
-              "threads": 1, "repeats": args.repeats, "rows": rows}
+              "threads": 1, "repeats": args.repeats, "rows": rows,
+              "preconditioner_median_ms": statistics.median(preconditioner),
+              "preconditioner_min_ms": min(preconditioner), "preconditioner_max_ms": max(preconditioner)}
     lines = ["# The network's cost per garment (GNN pass and graph inputs, no physics, 1 thread)", "",
              *source_lines(command, record["provenance"]),
              f"Garment: {record['garment_verts']} vertices; body: {record['body_verts']} vertices; "
@@ -103,6 +119,10 @@ def main() -> None:
         lines.append(f"| {r['latent']}×{r['blocks']}, {r['levels']} | {r['params']:,} | {r['reach_edges']} | "
                      f"{r['gnn_median_ms']:.1f} | {r['gnn_min_ms']:.1f}–{r['gnn_max_ms']:.1f} | "
                      f"{r['gnn_ratio_to_first']:.2f} | {r['inputs_median_ms']:.1f} |")
+    lines += ["", "The preconditioned displacement (`model.displacement: preconditioned`) adds to every size the "
+              "two-level solver's preconditioner at X_init, built and applied once: median "
+              f"{record['preconditioner_median_ms']:.1f} ms ({record['preconditioner_min_ms']:.1f}–"
+              f"{record['preconditioner_max_ms']:.1f})."]
     write_report(args.out, lines, record)
 
 
