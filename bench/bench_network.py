@@ -119,10 +119,10 @@ def main() -> None:
         lines.append(f"| {r['latent']}×{r['blocks']}, {r['levels']} | {r['params']:,} | {r['reach_edges']} | "
                      f"{r['gnn_median_ms']:.1f} | {r['gnn_min_ms']:.1f}–{r['gnn_max_ms']:.1f} | "
                      f"{r['gnn_ratio_to_first']:.2f} | {r['inputs_median_ms']:.1f} |")
-    lines += ["", "The preconditioned displacement (`model.displacement: preconditioned`) adds to every size the "
-              "two-level solver's preconditioner at X_init, built and applied once: median "
-              f"{record['preconditioner_median_ms']:.1f} ms ({record['preconditioner_min_ms']:.1f}–"
-              f"{record['preconditioner_max_ms']:.1f})."]
+    lines += ["", ("The preconditioned displacement (`model.displacement: preconditioned`) adds to every size the "
+                   "two-level solver's preconditioner at X_init, built and applied once: median "
+                   f"{record['preconditioner_median_ms']:.1f} ms ({record['preconditioner_min_ms']:.1f}–"
+                   f"{record['preconditioner_max_ms']:.1f}).")]
     write_report(args.out, lines, record)
 
 
