@@ -89,3 +89,20 @@ def test_training_on_the_cache_lowers_the_loss_and_logs_the_held_out_curve(tmp_p
     assert rows[0]["solver_t15/energy_gap"] < 1.0
     plot_validation(rows, tmp_path / "validation.png")
     assert (tmp_path / "validation.png").stat().st_size > 10_000
+
+
+def test_a_build_in_two_processes_writes_the_same_instances(tmp_path, tiny_split, anny_body):
+    from physdrape.train.data import load_templates
+    from physdrape.train.instances import InstanceCache, part_pool
+
+    data = _data(tiny_split, tmp_path / "cache")
+    templates = load_templates(data)
+    pools = {p: part_pool(anny_body, data, p) for p in ("train", "val")}
+    counts = {"train": 2, "val": 1}
+    for workers in (1, 2):
+        InstanceCache(tmp_path / f"w{workers}", data, SMALL).build(templates, anny_body, pools, counts, workers=workers)
+    one, two = (json.loads((tmp_path / f"w{w}" / "manifest.json").read_text()) for w in (1, 2))
+    assert one == two and [len(one["parts"][p]) for p in ("train", "val")] == [2, 1]
+    for name in ("train/000000", "train/000001", "val/000000"):
+        a, b = ((tmp_path / f"w{w}" / f"{name}.safetensors").read_bytes() for w in (1, 2))
+        assert a == b, name

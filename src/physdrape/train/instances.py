@@ -17,15 +17,23 @@ are cached and a larger `instance_count` extends a cache. Two parts:
 Folder layout: ``manifest.json`` (what was cached: the data and teacher settings, and per
 instance its garment, body, material and teacher energy) and ``<part>/<index>.safetensors``
 (x_init and teacher [m], float32 or the data's dtype). Every file is written atomically and the
-manifest after its instance files, so an interrupted build resumes where it stopped.
+manifest after its instance files, so an interrupted build resumes where it stopped. The build
+runs in `workers` processes (forked where the platform can, so the posed bodies are shared); an
+instance does not depend on how many: each is drawn and draped from its own seed, and the
+coordinating process writes them in order.
 """
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
+import multiprocessing as mp
+import os
+import signal
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -126,11 +134,12 @@ class InstanceCache:
                                      "again: the missing instances are rebuilt") from exc
 
     def build(self, templates: list[Template], body, pools: dict[str, BodyPool], counts: dict[str, int], *,
-              log=sys.stderr) -> None:
+              log=sys.stderr, workers: int | None = None) -> None:
         """Write the instances of each part up to `counts[part]` that are not cached yet.
 
         templates: the subset's garments (the last `validation_garments` are held out for ``val``);
-        body: the body model; pools: each part's posed bodies (`part_pool`).
+        body: the body model; pools: each part's posed bodies (`part_pool`); workers: processes
+        (default: the machine's CPU count; the instances do not depend on it).
         """
         held_out = self.data.validation_garments
         if not 0 < held_out < len(templates):
@@ -145,36 +154,85 @@ class InstanceCache:
             path = self.directory / "manifest.json"
             if path.is_file():
                 self.manifest = json.loads(path.read_text())
-            self._build(templates, body, pools, counts, log)
+            todo = [(p, i) for p in PARTS for i in range(len(self.manifest["parts"][p]), counts[p])]
+            if todo:
+                workers = max(1, min(len(todo), (os.cpu_count() or 1) if workers is None else workers))
+                maker = _InstanceMaker(templates, pools, DrapePipeline(body, dtype=getattr(torch, self.data.dtype)),
+                                       teacher_solver(self.model), self.data, self.model)
+                self._write(todo, maker, counts, workers, log)
 
-    def _build(self, templates: list[Template], body, pools: dict[str, BodyPool], counts: dict[str, int], log) -> None:
-        held_out = self.data.validation_garments
-        dtype = getattr(torch, self.data.dtype)
-        pipeline = DrapePipeline(body, dtype=dtype)
-        solver = teacher_solver(self.model)
-        garments = {"train": list(range(len(templates) - held_out)),
-                    "val": list(range(len(templates) - held_out, len(templates)))}
+    def _write(self, todo: list[tuple[str, int]], maker: _InstanceMaker, counts: dict[str, int], workers: int,
+               log) -> None:
+        """Make the instances `todo` in `workers` processes and write them in order, each
+        instance's file before the manifest that records it."""
         started = time.perf_counter()
-        for p in PARTS:
-            pool = pools[p]
-            records = self.manifest["parts"][p]
-            for i in range(len(records), counts[p]):
-                rng = np.random.default_rng([self.data.body_seed, PARTS.index(p), i])
-                g = garments[p][int(rng.integers(len(garments[p])))]
-                b = int(rng.integers(len(pool)))
-                material = draw_material(rng, self.data.materials)
-                state = pool.state(b)
-                drape = pipeline.build([Job(templates[g], 0, material)], state)
-                with torch.no_grad():
-                    teacher = solver(drape.x_init, drape.cloth, f_hat=None, steps=self.data.teacher_steps,
-                                     bodies=drape.bodies, body_index=drape.body_index)
-                write_bytes(self.directory / p / f"{i:06d}.safetensors",
-                            save({"x_init": drape.x_init.contiguous(), "teacher": teacher.contiguous()}))
-                energy = float(total_energy(teacher, drape.cloth, drape.bodies, drape.body_index,
-                                            contact_stiffness=self.model.contact_stiffness, margin=self.model.margin)[0])
-                records.append(asdict(Instance(g, templates[g].name, b, asdict(material), energy)))
+        total = sum(max(counts[q], len(self.manifest["parts"][q])) for q in PARTS)
+        with _runner(maker, workers) as run:
+            for (p, i), (record, x_init, teacher) in zip(todo, run(todo)):
+                write_bytes(self.directory / p / f"{i:06d}.safetensors", save({"x_init": x_init, "teacher": teacher}))
+                self.manifest["parts"][p].append(record)  # instance i: the todo list is in order
                 write_text(self.directory / "manifest.json", json.dumps(self.manifest, indent=1))
                 done = sum(len(self.manifest["parts"][q]) for q in PARTS)
-                total = sum(max(counts[q], len(self.manifest["parts"][q])) for q in PARTS)
-                print(f"[instances] {done}/{total} cached in {self.directory} ({time.perf_counter() - started:.0f} s)",
-                      file=log, flush=True)
+                print(f"[instances] {done}/{total} cached in {self.directory} ({time.perf_counter() - started:.0f} s, "
+                      f"{workers} process{'es' if workers > 1 else ''})", file=log, flush=True)
+
+
+class _InstanceMaker:
+    """Draws and drapes instance i of a part from its own seed: (record, x_init, teacher)."""
+
+    def __init__(self, templates: list[Template], pools: dict[str, BodyPool], pipeline: DrapePipeline,
+                 solver: StretchingSolver, data, model: ModelConfig) -> None:
+        self.templates, self.pools, self.pipeline, self.solver = templates, pools, pipeline, solver
+        self.data, self.model = data, model
+        held_out = data.validation_garments
+        self.garments = {"train": list(range(len(templates) - held_out)),
+                         "val": list(range(len(templates) - held_out, len(templates)))}
+
+    def __call__(self, job: tuple[str, int]) -> tuple[dict, torch.Tensor, torch.Tensor]:
+        p, i = job
+        rng = np.random.default_rng([self.data.body_seed, PARTS.index(p), i])
+        g = self.garments[p][int(rng.integers(len(self.garments[p])))]
+        b = int(rng.integers(len(self.pools[p])))
+        material = draw_material(rng, self.data.materials)
+        drape = self.pipeline.build([Job(self.templates[g], 0, material)], self.pools[p].state(b))
+        with torch.no_grad():
+            teacher = self.solver(drape.x_init, drape.cloth, f_hat=None, steps=self.data.teacher_steps,
+                                  bodies=drape.bodies, body_index=drape.body_index)
+        energy = float(total_energy(teacher, drape.cloth, drape.bodies, drape.body_index,
+                                    contact_stiffness=self.model.contact_stiffness, margin=self.model.margin)[0])
+        record = asdict(Instance(g, self.templates[g].name, b, asdict(material), energy))
+        return record, drape.x_init.contiguous(), teacher.contiguous()
+
+
+_MAKER: _InstanceMaker | None = None  # the forked workers' maker, set before the pool starts
+
+
+def _make_in_worker(job: tuple[str, int]) -> tuple[dict, torch.Tensor, torch.Tensor]:
+    return _MAKER(job)
+
+
+def _start_worker(maker: _InstanceMaker | None) -> None:
+    """Pool workers leave Ctrl-C to the parent (which keeps what was written) and run one thread."""
+    global _MAKER
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    torch.set_num_threads(1)
+    if maker is not None:  # spawned: the maker arrives pickled
+        _MAKER = maker
+
+
+@contextlib.contextmanager
+def _runner(maker: _InstanceMaker, workers: int) -> Iterator:
+    """A map of `maker` over jobs yielding results in order: in this process, or in a pool of
+    `workers` processes, forked where the platform can (the bodies and templates are shared)."""
+    global _MAKER
+    if workers <= 1:
+        yield lambda jobs: map(maker, jobs)
+        return
+    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+    _MAKER = maker
+    try:
+        with mp.get_context(method).Pool(workers, initializer=_start_worker,
+                                         initargs=(None if method == "fork" else maker,)) as pool:
+            yield lambda jobs: pool.imap(_make_in_worker, jobs)
+    finally:
+        _MAKER = None
