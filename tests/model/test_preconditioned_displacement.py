@@ -6,7 +6,7 @@ import torch
 from drape_cases import make_input
 
 from physdrape.model import ModelConfig, PhysDrape, Variant
-from physdrape.model.stretching_solver import StretchingSolver
+from physdrape.model.stretching_solver import StretchingSolver, clip_moves
 from physdrape.physics.energy import total_energy
 from physdrape.physics.forces import internal_forces
 from physdrape.train.loss import LossConfig, drape_loss
@@ -67,7 +67,7 @@ def test_the_networks_move_is_its_force_through_the_preconditioner(two_tubes):
     weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
     precondition = model.solver.preconditioner(batch.x_init, batch.cloth, bodies=batch.bodies,
                                                body_index=batch.body_index)
-    expected = batch.x_init + precondition(3.0 * raw[:, :3] * weight[:, None])
+    expected = batch.x_init + clip_moves(precondition(3.0 * raw[:, :3] * weight[:, None]), config.max_move)
     torch.testing.assert_close(out.x_gnn, expected, rtol=1e-5, atol=1e-8)
     assert float((out.x_gnn - batch.x_init).detach().norm(dim=-1).max()) > 1e-6
     loss, _ = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, LossConfig(), **CONTACT)
@@ -90,4 +90,4 @@ def test_training_through_the_preconditioner_lowers_the_energy(two_tubes):
         loss.backward()
         optimizer.step()
         losses.append(float(loss))
-    assert sum(losses[-3:]) < 0.9 * sum(losses[:3]), losses
+    assert losses[-1] < 0.95 * losses[0] and losses[-1] < min(losses[:10]), losses

@@ -64,6 +64,8 @@ class ModelConfig:
     stiffness plus the coarse correction on smooth patches, body contact included), so that the
     loss's gradient reaches the network as the solver's preconditioned step, and a patch sliding
     or riding up as a whole is a smooth force, where "direct" needs the move vertex by vertex.
+    max_move: the preconditioned move's per-vertex length limit [m] (a guard: C's coarse modes
+    are soft, so a force field can ask for moves of metres, e.g. through the body).
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -89,6 +91,7 @@ class ModelConfig:
     displacement: Displacement = Displacement.DIRECT
     displacement_scale: float = 0.01
     force_scale: float = 1.0
+    max_move: float = 0.03
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
 
@@ -96,6 +99,8 @@ class ModelConfig:
         object.__setattr__(self, "variant", Variant(self.variant))
         object.__setattr__(self, "solver", SolverKind(self.solver))
         object.__setattr__(self, "displacement", Displacement(self.displacement))
+        if self.max_move < 0:
+            raise ValueError(f"ModelConfig.max_move must be ≥ 0 [m] (0: unclipped), got {self.max_move}")
         if self.displacement is Displacement.PRECONDITIONED and self.solver is not SolverKind.TWO_LEVEL:
             raise ValueError("ModelConfig.displacement 'preconditioned' uses the two_level solver's preconditioner; "
                              f"set solver: two_level (got {self.solver.value})")

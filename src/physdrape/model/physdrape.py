@@ -14,7 +14,7 @@ from physdrape.model.config import Displacement, ModelConfig, Variant
 from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, edge_features, node_features
 from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
-from physdrape.model.stretching_solver import StretchingSolver
+from physdrape.model.stretching_solver import StretchingSolver, clip_moves
 from physdrape.physics.cloth import Cloth
 
 
@@ -104,7 +104,7 @@ class PhysDrape(nn.Module):
         if cfg.displacement is Displacement.PRECONDITIONED:
             precondition = self.solver.preconditioner(x_init.detach(), batch.cloth, bodies=batch.bodies,
                                                       body_index=batch.body_index)
-            delta_x = precondition(cfg.force_scale * out[:, :3] * weight[:, None])
+            delta_x = clip_moves(precondition(cfg.force_scale * out[:, :3] * weight[:, None]), cfg.max_move)
         else:
             delta_x = cfg.displacement_scale * out[:, :3]
         f_hat = out[:, 3:] * weight[:, None]

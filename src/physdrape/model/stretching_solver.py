@@ -130,10 +130,7 @@ class StretchingSolver(nn.Module):
         return x
 
     def _clip(self, move: Tensor) -> Tensor:
-        if not self.max_step:
-            return move
-        length = move.norm(dim=-1, keepdim=True)
-        return move * (self.max_step / length.clamp_min(self.max_step))
+        return clip_moves(move, self.max_step)
 
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
                    bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
@@ -238,6 +235,15 @@ class StretchingSolver(nn.Module):
             lower = ~done & (trial < phi0)
             phi, done = torch.where(lower, trial, phi), done | lower
         return torch.where(done, alpha, torch.zeros_like(alpha)), torch.where(done, phi, phi0)
+
+
+def clip_moves(move: Tensor, max_length: float) -> Tensor:
+    """Each vertex's move (V, 3) [m] shortened to at most `max_length` [m], its direction kept
+    (0: unclipped)."""
+    if not max_length:
+        return move
+    length = move.norm(dim=-1, keepdim=True)
+    return move * (max_length / length.clamp_min(max_length))
 
 
 def _precondition(stiffness_factor: Tensor, coarse: CoarseSpace, force: Tensor) -> Tensor:
