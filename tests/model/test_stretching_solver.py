@@ -6,6 +6,7 @@ from drape_cases import make_input, tube
 
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
 from physdrape.physics import Material
+from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.forces import internal_energy
 
 SILK = Material(mu=1.6e4, lam=2e4, k_bend=2e-6, density=0.05)  # the soft end of the training range
@@ -132,3 +133,19 @@ def test_two_level_arguments_are_checked():
         _solver(eta=1.0, coarse_levels=0)
     with pytest.raises(ValueError, match="contact_band"):
         _solver(eta=1.0, contact_band=-1.0)
+
+
+def test_coarse_space_is_refactored_every_refactor_every_steps(monkeypatch):
+    batch, x0 = _case()
+    calls = []
+    original = CoarseSpace.factor
+    monkeypatch.setattr(CoarseSpace, "factor", lambda self, *a, **k: (calls.append(1), original(self, *a, **k))[1])
+    for every, expected in ((1, 7), (3, 3), (7, 1)):
+        calls.clear()
+        with torch.no_grad():
+            _solver(eta=1.0, gamma=0.98, max_step=0.02, requery_every=3, refactor_every=every)(
+                x0, batch.cloth, f_hat=None, steps=7, bodies=batch.bodies, body_index=batch.body_index)
+        assert len(calls) == expected, (every, len(calls))
+    with pytest.raises(ValueError, match="refactor_every"):
+        _solver(eta=1.0, refactor_every=0)
+

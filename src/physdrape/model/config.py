@@ -47,7 +47,9 @@ class ModelConfig:
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
     solver: "two_level" (conjugate directions, block Jacobi plus a coarse correction on smooth
     patches, body contact, a line search) or "explicit" (the paper's Eq. 10, a scalar
-    compliance); see `StretchingSolver`. requery_every: two-level steps between body queries.
+    compliance); see `StretchingSolver`. requery_every: two-level steps between body queries;
+    refactor_every: two-level steps between factorisations of the coarse space (1: every step,
+    the coarse moves follow the garment's stiffness as its strain relaxes).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
@@ -80,8 +82,9 @@ class ModelConfig:
     solver: SolverKind = SolverKind.TWO_LEVEL
     eta: float = 1.0
     gamma: float = 0.98
-    max_step: float = 1e-2
+    max_step: float = 2e-2
     requery_every: int = 3
+    refactor_every: int = 1
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05

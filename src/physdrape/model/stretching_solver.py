@@ -52,8 +52,10 @@ class StretchingSolver(nn.Module):
       `physics.majorant.vertex_blocks`: each vertex gets the compliance of its own stiffness, so
       one η suits small and large faces, soft and stiff fabrics), the second term the Galerkin
       correction on a garment's smooth patches (`physics.coarse_space.CoarseSpace`), which moves
-      what block Jacobi cannot: the garment sliding, riding up or stretching as a whole. Coarse
-      factor and body planes are refreshed every `requery_every` steps. Each step's length is
+      what block Jacobi cannot: the garment sliding, riding up or stretching as a whole. The body
+      planes are refreshed every `requery_every` steps, the coarse factor every `refactor_every`
+      steps: Pᵀ K P at a garment still stretched from X_init is far stiffer than after a step
+      that relaxed it, so a stale factor shortens the coarse moves. Each step's length is
       the minimum of a parabola through Φ along the clipped move η γ^t C F (then halved while Φ
       does not drop), so no step raises a garment's Φ (on the planes held at that step). C, the
       conjugation and the step length are not differentiated; the step is, through F, f̂, η, γ.
@@ -69,8 +71,9 @@ class StretchingSolver(nn.Module):
         gamma: initial decay γ.
         max_step: longest move of one vertex in one step [m] (0 disables the guard).
         margin, contact_stiffness: ε [m] and k_c [J/m³] of the two-level solver's contact term.
-        requery_every: two-level steps between body queries (the planes, and the coarse factor,
-            are held in between).
+        requery_every: two-level steps between body queries (the planes are held in between).
+        refactor_every: two-level steps between factorisations of the coarse space at the current
+            positions (the factor is held in between).
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -78,22 +81,24 @@ class StretchingSolver(nn.Module):
     """
 
     def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
-                 gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, max_halvings: int = 6,
+                 gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int = 1,
+                 max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
         if max_step < 0:
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
-        if requery_every < 1 or max_halvings < 0:
-            raise ValueError(f"need requery_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, {max_halvings}")
+        if requery_every < 1 or refactor_every < 1 or max_halvings < 0:
+            raise ValueError(f"need requery_every ≥ 1, refactor_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, "
+                             f"{refactor_every}, {max_halvings}")
         if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0:
             raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0 and contact_band ≥ 0 [m], got "
                              f"{coarse_levels}, {coarse_smoothing}, {contact_band}")
         self.kind = SolverKind(kind)
         self.max_step = max_step
         self.margin, self.contact_stiffness = margin, contact_stiffness
-        self.requery_every, self.max_halvings = requery_every, max_halvings
+        self.requery_every, self.refactor_every, self.max_halvings = requery_every, refactor_every, max_halvings
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
@@ -146,13 +151,12 @@ class StretchingSolver(nn.Module):
         phi = None
         direction = last_z = last_force = None  # the previous conjugate direction, preconditioned force, force
         for t in range(steps):
-            refresh = t % self.requery_every == 0
-            if bodies is not None and refresh:
+            if bodies is not None and t % self.requery_every == 0:
                 problem.requery(x, bodies, body_index)
                 phi = None
             force, distance = problem.force(x)
             contact = problem.contact_blocks(distance)
-            if refresh:
+            if t % self.refactor_every == 0:
                 coarse.factor(x, contact)
             z = _precondition(self._stiffness_factor(x.detach(), cloth, contact), coarse, force)
             if direction is not None:

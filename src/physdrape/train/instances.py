@@ -3,7 +3,8 @@
 With a cache a training step costs the network and the physics only, not the data pipeline
 (skinning-transfer fits, X_init's strain limiting), and each instance carries a target made from
 physics alone: the teacher drape, the two-level stretching solver (the product's physics, without
-the network) run `DataConfig.teacher_steps` steps from the instance's X_init. The method stays
+the network, with the fixed `TEACHER_SETTINGS`) run `DataConfig.teacher_steps` steps from the
+instance's X_init. The method stays
 self-supervised: no external data, only our own solver run for longer than a drape can afford.
 
 An instance is a training garment of the split on a body of the data's pool in a material, drawn
@@ -75,14 +76,19 @@ def part_pool(body, data, part: str) -> BodyPool:
     return BodyPool(body, data.body_pool_size, seed=data.body_seed + PARTS.index(part), dtype=getattr(torch, data.dtype))
 
 
+#: The teacher's solver settings (the two-level solver's, apart from the contact term): fixed
+#: here, not taken from `ModelConfig`'s defaults, so that a cache's teacher drapes stay the
+#: reference they were made as when the product's solver settings change. Recorded in the
+#: manifest; a manifest without them was written with these.
+TEACHER_SETTINGS = {"eta": 1.0, "gamma": 0.98, "max_step": 0.01, "requery_every": 3, "refactor_every": 3,
+                    "coarse_levels": 2, "coarse_smoothing": 2}
+
+
 def teacher_solver(model: ModelConfig) -> StretchingSolver:
-    """The teacher: the two-level solver with the product's settings (`ModelConfig()`), and the
-    contact term (k_c, ε) of the model being trained, so the teacher and the loss share one energy."""
-    shipped = ModelConfig()
-    return StretchingSolver(kind=SolverKind.TWO_LEVEL, eta=shipped.eta, gamma=shipped.gamma,
-                            max_step=shipped.max_step, margin=model.margin, contact_stiffness=model.contact_stiffness,
-                            requery_every=shipped.requery_every, coarse_levels=shipped.coarse_levels,
-                            coarse_smoothing=shipped.coarse_smoothing)
+    """The teacher: the two-level solver with `TEACHER_SETTINGS` and the contact term (k_c, ε) of
+    the model being trained, so the teacher and the loss share one energy."""
+    return StretchingSolver(kind=SolverKind.TWO_LEVEL, margin=model.margin, contact_stiffness=model.contact_stiffness,
+                            **TEACHER_SETTINGS)
 
 
 def _definition(data, model: ModelConfig) -> dict:
@@ -90,7 +96,7 @@ def _definition(data, model: ModelConfig) -> dict:
     keys = ("split_dir", "split_seed", "subset", "max_garments", "body_pool_size", "body_seed", "materials", "dtype",
             "validation_garments", "teacher_steps")
     return {"data": {k: getattr(data, k) for k in keys},
-            "contact": {"stiffness": model.contact_stiffness, "margin": model.margin}}
+            "contact": {"stiffness": model.contact_stiffness, "margin": model.margin}, "teacher": TEACHER_SETTINGS}
 
 
 class InstanceCache:
@@ -112,8 +118,9 @@ class InstanceCache:
             except (OSError, json.JSONDecodeError) as exc:
                 raise InstanceCacheError(f"{path} cannot be read ({exc}); delete the folder {self.directory} and "
                                          "run again to rebuild it") from exc
-            mine = {k: self.manifest[k] for k in ("format", "data", "contact")}
-            theirs = {k: found.get(k) for k in ("format", "data", "contact")}
+            mine = {k: self.manifest[k] for k in ("format", "data", "contact", "teacher")}
+            theirs = {k: found.get(k) for k in ("format", "data", "contact")} | {
+                "teacher": found.get("teacher", TEACHER_SETTINGS)}
             if mine != theirs:
                 raise InstanceCacheError(
                     f"the instance cache {self.directory} was made with other settings ({theirs}) than this run "
