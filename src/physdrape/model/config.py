@@ -82,7 +82,7 @@ class ModelConfig:
     solver: SolverKind = SolverKind.TWO_LEVEL
     eta: float = 1.0
     gamma: float = 0.98
-    max_step: float = 2e-2
+    max_step: float = 1e-2
     requery_every: int = 3
     refactor_every: int = 1
     coarse_levels: int = 2
