@@ -1,7 +1,7 @@
 """The two-level solver's settings side by side: E_total over the teacher drapes and wall time, at T steps.
 
 Run: .venv/bin/python bench/solver_settings.py --checkpoint src/physdrape/assets/models/cpu_default \
-    [--config configs/global/full_energy.yaml] [--setting NAME=KEY:VALUE,...] [--steps 1 3 6 15] \
+    [--config configs/global/full_energy.yaml] [--setting NAME=KEY:VALUE,...] [--steps 1 2 3 4 6 15] \
     [--out results/solver_settings]
 
 On the held-out validation set of CONFIG's data section (`physdrape.train.validation`: garments
@@ -10,8 +10,8 @@ the same X_init with `physdrape.train.instances.TEACHER_SETTINGS`), every settin
 instance at every T twice: the solver alone from X_init (Δx = 0, f̂ = 0, then the handler;
 `PhysDrape.physics_only`) and the checkpoint's full model (GNN → solver → handler). A setting
 overrides fields of the checkpoint's `ModelConfig` (default settings: ``checkpoint``, its own
-config, and ``factor_every_3``: the coarse space factored every 3 steps with the body planes, and
-a 1 cm step clip). Per setting, row and T: the mean E_total over the set divided by the teacher
+config, and ``refactor_every_step``: the coarse space factored at every step instead of with the
+body planes). Per setting, row and T: the mean E_total over the set divided by the teacher
 drapes' mean, E_strain likewise, and the median over instances of one drape's wall time (one
 torch thread; X_init is not included, it is the same for every row). Settings run interleaved
 instance by instance, so a change in the machine's load hits all of them alike. Writes <out>.md
@@ -39,7 +39,7 @@ from physdrape.provenance import provenance
 from physdrape.train.data import DrapeSource
 from physdrape.train.trainer import TrainConfig
 
-DEFAULT_SETTINGS = ("checkpoint=", "factor_every_3=refactor_every:3,max_step:0.01")
+DEFAULT_SETTINGS = ("checkpoint=", "refactor_every_step=refactor_every:1")
 
 
 def parse_setting(text: str) -> tuple[str, dict]:
@@ -64,7 +64,7 @@ def main() -> None:
                         help="run config whose data section names the validation set")
     parser.add_argument("--setting", action="append", metavar="NAME=KEY:VALUE,...",
                         help=f"repeatable (default: {' '.join(DEFAULT_SETTINGS)})")
-    parser.add_argument("--steps", type=int, nargs="+", default=[1, 3, 6, 15])
+    parser.add_argument("--steps", type=int, nargs="+", default=[1, 2, 3, 4, 6, 15])
     parser.add_argument("--out", default="results/solver_settings")
     args = parser.parse_args()
     torch.set_num_threads(1)

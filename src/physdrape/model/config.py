@@ -49,7 +49,8 @@ class ModelConfig:
     patches, body contact, a line search) or "explicit" (the paper's Eq. 10, a scalar
     compliance); see `StretchingSolver`. requery_every: two-level steps between body queries;
     refactor_every: two-level steps between factorisations of the coarse space (1: every step,
-    the coarse moves follow the garment's stiffness as its strain relaxes).
+    the coarse moves follow the garment's stiffness as its strain relaxes, at the cost of a
+    factorisation per step; `bench/solver_settings.py` measures both).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
@@ -84,7 +85,7 @@ class ModelConfig:
     gamma: float = 0.98
     max_step: float = 1e-2
     requery_every: int = 3
-    refactor_every: int = 1
+    refactor_every: int = 3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05

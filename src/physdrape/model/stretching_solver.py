@@ -73,7 +73,7 @@ class StretchingSolver(nn.Module):
         margin, contact_stiffness: ε [m] and k_c [J/m³] of the two-level solver's contact term.
         requery_every: two-level steps between body queries (the planes are held in between).
         refactor_every: two-level steps between factorisations of the coarse space at the current
-            positions (the factor is held in between).
+            positions (the factor is held in between); None: with the body planes.
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -81,7 +81,7 @@ class StretchingSolver(nn.Module):
     """
 
     def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
-                 gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int = 1,
+                 gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int | None = None,
                  max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01) -> None:
         super().__init__()
@@ -89,6 +89,7 @@ class StretchingSolver(nn.Module):
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
         if max_step < 0:
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
+        refactor_every = requery_every if refactor_every is None else refactor_every
         if requery_every < 1 or refactor_every < 1 or max_halvings < 0:
             raise ValueError(f"need requery_every ≥ 1, refactor_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, "
                              f"{refactor_every}, {max_halvings}")
