@@ -1,0 +1,113 @@
+"""What a global move is worth: the solver's T steps from starts that hold the teacher's move at a given resolution.
+
+Run: .venv/bin/python bench/global_move_headroom.py --checkpoint src/physdrape/assets/models/cpu_default \
+    [--config configs/global/full_energy.yaml] [--levels 2 3 4] [--steps 0 3 15] [--out results/global_move_headroom]
+
+On the held-out validation set of CONFIG's data section (`physdrape.train.validation`), each
+instance is started from
+
+- ``x_init``: X_init (the solver alone);
+- ``gnn``: X_init + Δx of the checkpoint's network (the full model without its f̂);
+- ``teacher_on_patches_L``: X_init plus the teacher's move (teacher drape − X_init) projected, in
+  the least-squares sense, onto the smooth patches of coarse level L (`topology.aggregates`,
+  `topology.smoothed_prolongation`, the two-level solver's coarse space: level 2 has patches of
+  6–15 vertices, each level up about twice as wide): what a network that got the global settling
+  exactly right at that resolution, and nothing finer, would hand the solver;
+- ``teacher``: the teacher drape itself (the floor: the handler and the solver at the teacher);
+
+and the checkpoint's solver (f̂ = 0) and collision handler run T steps from there (T = 0: the
+start as it is, no handler). Per start and T: the mean E_total over the set divided by the teacher
+drapes' mean, and E_strain likewise. Writes <out>.md and <out>.json with the command and the commit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from dataclasses import replace
+
+import numpy as np
+import scipy.sparse.linalg as spla
+import torch
+from report import source_lines, write_report
+
+from physdrape.checkpoint import load_model
+from physdrape.config_io import load_config
+from physdrape.geometry import topology
+from physdrape.model import PhysDrape, Variant
+from physdrape.physics.energy import drape_energies
+from physdrape.provenance import provenance
+from physdrape.train.data import DrapeSource
+from physdrape.train.trainer import TrainConfig
+
+
+def project_on_patches(move: torch.Tensor, faces: torch.Tensor, levels: int, smoothing: int) -> torch.Tensor:
+    """The least-squares fit P c ≈ move (V, 3) with P the smoothed patch prolongation of one garment."""
+    edges = topology.undirected_edges(faces.cpu().numpy())
+    num_verts = move.shape[0]
+    prolong = topology.smoothed_prolongation(edges, num_verts, topology.aggregates(edges, num_verts, levels), smoothing)
+    normal = (prolong.T @ prolong).tocsc()
+    coarse = spla.spsolve(normal, prolong.T @ move.double().cpu().numpy())
+    return torch.from_numpy(np.asarray(prolong @ coarse)).to(move)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", required=True)
+    parser.add_argument("--config", default="configs/global/full_energy.yaml",
+                        help="run config whose data section names the validation set")
+    parser.add_argument("--levels", type=int, nargs="+", default=[2, 3, 4])
+    parser.add_argument("--steps", type=int, nargs="+", default=[0, 3, 15])
+    parser.add_argument("--out", default="results/global_move_headroom")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    trained, _ = load_model(args.checkpoint)
+    model = PhysDrape(replace(trained.config, variant=Variant.FULL)).eval()
+    model.load_state_dict(trained.state_dict())
+    train_config = load_config(TrainConfig, args.config)
+    batches = DrapeSource(train_config.data, model=train_config.model).validation()
+    if not batches:
+        raise SystemExit(f"{args.config}: its data section has no instance cache, so no validation set")
+    contact = dict(contact_stiffness=model.config.contact_stiffness, margin=model.config.margin)
+    starts = ["x_init", "gnn", *(f"teacher_on_patches_{lv}" for lv in args.levels), "teacher"]
+    sums = {(s, t): [0.0, 0.0] for s in starts for t in args.steps}
+    teacher_total = teacher_strain = 0.0
+    with torch.no_grad():
+        for batch in batches:
+            drape, teacher = batch.drape, batch.teacher
+            problem = (drape.cloth, drape.bodies, drape.body_index)
+            terms = drape_energies(teacher, *problem, **contact)
+            teacher_total += float(sum(terms.values())[0])
+            teacher_strain += float(terms["strain"][0])
+            begin = {"x_init": drape.x_init, "gnn": model(drape, steps=0).x_gnn, "teacher": teacher}
+            for lv in args.levels:
+                begin[f"teacher_on_patches_{lv}"] = drape.x_init + project_on_patches(
+                    teacher - drape.x_init, drape.garments.faces, lv, model.config.coarse_smoothing)
+            for name, x0 in begin.items():
+                for t in args.steps:
+                    x = x0 if t == 0 else model.physics_only(replace(drape, x_init=x0), steps=t).x
+                    terms = drape_energies(x, *problem, **contact)
+                    sums[(name, t)][0] += float(sum(terms.values())[0])
+                    sums[(name, t)][1] += float(terms["strain"][0])
+    rows = [{"start": s, "steps": t, "energy_ratio": e / teacher_total, "strain_ratio": st / teacher_strain}
+            for (s, t), (e, st) in sums.items()]
+    command = shlex.join(["python", "bench/global_move_headroom.py", *sys.argv[1:]])
+    info = provenance()
+    lines = ["# What a global move is worth", "", *source_lines(command, info),
+             f"{len(batches)} validation instances of `{args.config}`; checkpoint `{args.checkpoint}` (its solver, "
+             "f̂ = 0, and its collision handler); torch threads 1.", "",
+             "E/teacher: mean E_total over the set / the teacher drapes' mean (E_strain likewise) after T solver steps "
+             "and the handler from each start (T = 0: the start itself). teacher_on_patches_L: X_init plus the "
+             "teacher's move fitted on the smooth patches of coarse level L.", "",
+             "| start | " + " | ".join(f"T={t} E/teacher | T={t} E_strain/teacher" for t in args.steps) + " |",
+             "|---|" + "---:|---:|" * len(args.steps)]
+    for s in starts:
+        cells = [f"{sums[(s, t)][0] / teacher_total:.3f} | {sums[(s, t)][1] / teacher_strain:.3f}" for t in args.steps]
+        lines.append(f"| {s} | " + " | ".join(cells) + " |")
+    write_report(args.out, lines, {"command": command, "provenance": info, "config": args.config,
+                                   "checkpoint": args.checkpoint, "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
