@@ -148,4 +148,3 @@ def test_coarse_space_is_refactored_every_refactor_every_steps(monkeypatch):
         assert len(calls) == expected, (every, len(calls))
     with pytest.raises(ValueError, match="refactor_every"):
         _solver(eta=1.0, refactor_every=0)
-
