@@ -30,16 +30,11 @@ from dataclasses import replace
 import numpy as np
 import scipy.sparse.linalg as spla
 import torch
+from held_out import energies, full_model, validation_batches
 from report import source_lines, write_report
 
-from physdrape.checkpoint import load_model
-from physdrape.config_io import load_config
 from physdrape.geometry import topology
-from physdrape.model import PhysDrape, Variant
-from physdrape.physics.energy import drape_energies
 from physdrape.provenance import provenance
-from physdrape.train.data import DrapeSource
-from physdrape.train.trainer import TrainConfig
 
 
 def project_on_patches(move: torch.Tensor, faces: torch.Tensor, levels: int, smoothing: int) -> torch.Tensor:
@@ -62,24 +57,16 @@ def main() -> None:
     parser.add_argument("--out", default="results/global_move_headroom")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    trained, _ = load_model(args.checkpoint)
-    model = PhysDrape(replace(trained.config, variant=Variant.FULL)).eval()
-    model.load_state_dict(trained.state_dict())
-    train_config = load_config(TrainConfig, args.config)
-    batches = DrapeSource(train_config.data, model=train_config.model).validation()
-    if not batches:
-        raise SystemExit(f"{args.config}: its data section has no instance cache, so no validation set")
-    contact = dict(contact_stiffness=model.config.contact_stiffness, margin=model.config.margin)
+    model = full_model(args.checkpoint)
+    batches = validation_batches(args.config)
     starts = ["x_init", "gnn", *(f"teacher_on_patches_{lv}" for lv in args.levels), "teacher"]
     sums = {(s, t): [0.0, 0.0] for s in starts for t in args.steps}
     teacher_total = teacher_strain = 0.0
     with torch.no_grad():
         for batch in batches:
             drape, teacher = batch.drape, batch.teacher
-            problem = (drape.cloth, drape.bodies, drape.body_index)
-            terms = drape_energies(teacher, *problem, **contact)
-            teacher_total += float(sum(terms.values())[0])
-            teacher_strain += float(terms["strain"][0])
+            total, strain = energies(teacher, drape, model)
+            teacher_total, teacher_strain = teacher_total + total, teacher_strain + strain
             begin = {"x_init": drape.x_init, "gnn": model(drape, steps=0).x_gnn, "teacher": teacher}
             for lv in args.levels:
                 begin[f"teacher_on_patches_{lv}"] = drape.x_init + project_on_patches(
@@ -87,9 +74,9 @@ def main() -> None:
             for name, x0 in begin.items():
                 for t in args.steps:
                     x = x0 if t == 0 else model.physics_only(replace(drape, x_init=x0), steps=t).x
-                    terms = drape_energies(x, *problem, **contact)
-                    sums[(name, t)][0] += float(sum(terms.values())[0])
-                    sums[(name, t)][1] += float(terms["strain"][0])
+                    total, strain = energies(x, drape, model)
+                    sums[(name, t)][0] += total
+                    sums[(name, t)][1] += strain
     rows = [{"start": s, "steps": t, "energy_ratio": e / teacher_total, "strain_ratio": st / teacher_strain}
             for (s, t), (e, st) in sums.items()]
     command = shlex.join(["python", "bench/global_move_headroom.py", *sys.argv[1:]])

@@ -26,18 +26,14 @@ import shlex
 import statistics
 import sys
 import time
-from dataclasses import fields, replace
+from dataclasses import fields
 
 import torch
+from held_out import energies, full_model, validation_batches
 from report import source_lines, write_report
 
-from physdrape.checkpoint import load_model
-from physdrape.config_io import load_config
-from physdrape.model import ModelConfig, PhysDrape, Variant
-from physdrape.physics.energy import drape_energies
+from physdrape.model import ModelConfig
 from physdrape.provenance import provenance
-from physdrape.train.data import DrapeSource
-from physdrape.train.trainer import TrainConfig
 
 DEFAULT_SETTINGS = ("checkpoint=", "refactor_every_step=refactor_every:1")
 
@@ -53,7 +49,15 @@ def parse_setting(text: str) -> tuple[str, dict]:
         key, sep, value = item.partition(":")
         if not sep or key not in types:
             raise SystemExit(f"--setting {text!r}: {item!r} is not KEY:VALUE with KEY a ModelConfig field")
-        out[key] = types[key](value)
+        try:
+            if types[key] is bool:
+                if value.lower() not in ("true", "false"):
+                    raise ValueError("give true or false")
+                out[key] = value.lower() == "true"
+            else:
+                out[key] = types[key](value)
+        except ValueError as exc:
+            raise SystemExit(f"--setting {text!r}: {value!r} is not a valid {key} ({exc})") from None
     return name, out
 
 
@@ -69,26 +73,16 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     settings = dict(parse_setting(s) for s in (args.setting or DEFAULT_SETTINGS))
-    trained, _ = load_model(args.checkpoint)
-    train_config = load_config(TrainConfig, args.config)
-    batches = DrapeSource(train_config.data, model=train_config.model).validation()
-    if not batches:
-        raise SystemExit(f"{args.config}: its data section has no instance cache, so no validation set")
-    models = {}
-    for name, override in settings.items():
-        model = PhysDrape(replace(trained.config, variant=Variant.FULL, **override)).eval()
-        model.load_state_dict(trained.state_dict())
-        models[name] = model
-    contact = dict(contact_stiffness=trained.config.contact_stiffness, margin=trained.config.margin)
+    batches = validation_batches(args.config)
+    models = {name: full_model(args.checkpoint, **override) for name, override in settings.items()}
+    yardstick = full_model(args.checkpoint)  # every energy with the checkpoint's own contact term
     sums = {(n, row, t): [0.0, 0.0, []] for n in models for row in ("solver", "model") for t in args.steps}
     teacher_total = teacher_strain = 0.0
     with torch.no_grad():
         for batch in batches:
             drape = batch.drape
-            problem = (drape.cloth, drape.bodies, drape.body_index)
-            terms = drape_energies(batch.teacher, *problem, **contact)
-            teacher_total += float(sum(terms.values())[0])
-            teacher_strain += float(terms["strain"][0])
+            total, strain = energies(batch.teacher, drape, yardstick)
+            teacher_total, teacher_strain = teacher_total + total, teacher_strain + strain
             for t in args.steps:
                 for name, model in models.items():
                     for row, run in (("solver", model.physics_only), ("model", model)):
@@ -96,10 +90,10 @@ def main() -> None:
                         start = time.perf_counter()
                         x = run(drape, steps=t).x
                         wall = time.perf_counter() - start
-                        terms = drape_energies(x, *problem, **contact)
+                        total, strain = energies(x, drape, yardstick)
                         cell = sums[(name, row, t)]
-                        cell[0] += float(sum(terms.values())[0])
-                        cell[1] += float(terms["strain"][0])
+                        cell[0] += total
+                        cell[1] += strain
                         cell[2].append(wall)
     load = os.getloadavg()
     result = [{"setting": n, "override": settings[n], "row": row, "steps": t, "energy_ratio": e / teacher_total,
