@@ -18,23 +18,24 @@ and its hinge blocks (16 vertex pairs each) would more than double the gather fo
 in the correction.
 
 Numerics: patches and P depend on a garment's topology only and are cached. K (in the cloth's
-dtype) is gathered into 3×3 blocks of the vertex pairs that share a face; Pᵀ K P is formed in
-float64 with scipy (block-sparse products) and factorised per garment (dense Cholesky). The
-correction is differentiable in r (P and the factor are constants).
+dtype) is gathered into 3×3 blocks of the vertex pairs that share a face. Pᵀ K P is linear in
+those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so the
+topology fixes a sparse Galerkin operator G (coarse blocks × pairs) that is built once, and each
+`factor` forms Pᵀ K P as one sparse product G · K in float64, scattered straight into each
+garment's dense coarse matrix, which is then factorised (dense Cholesky). The correction is
+differentiable in r (P and the factor are constants).
 
-Devices: the blocks of K are summed per vertex pair on the cloth's device (a Warp kernel), and
-the correction `solve` (every solver step) runs there too, with P and the factors held there. The
-Galerkin product and the factorisation (`factor`, every few steps) run on the host: Pᵀ K P is a
-product of block-sparse matrices whose pattern is fixed by the topology, which scipy forms in
-float64 at once, and each garment's coarse system is small (at most 3·MAX_PATCHES unknowns). Each
-`factor` therefore copies the pair and contact blocks to the host and the factors back; on the
-CPU both copies are free.
+Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
+the Galerkin product, the factorisation (each garment's coarse system is small, at most
+3·MAX_PATCHES unknowns) and the correction `solve` (every solver step), with P, G and the
+factors held there.
 """
 
 from __future__ import annotations
 
 import collections
 import hashlib
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,20 +102,55 @@ def _regularized_cholesky(block: Tensor) -> Tensor:
                      "regularisation of its mean diagonal (K must be a PSD majorant)")
 
 
+def _galerkin_operator(prolong: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """The sparse operator G with (Pᵀ K P)_IJ = Σ_p G[(I, J), p] K_p for K given as blocks K_p of
+    the vertex pairs p = (rows[p], cols[p]): G[(I, J), p] = P[rows[p], I] · P[cols[p], J].
+
+    Returns G, one row per coarse block (I, J) that some pair reaches (scipy CSR, (blocks,
+    pairs)), and those blocks' keys I · patches + J, ascending (the order of G's rows)."""
+    patches = prolong.shape[1]
+    row_counts = np.diff(prolong.indptr)
+    count_a, count_b = row_counts[rows], row_counts[cols]
+    per_pair = count_a * count_b  # every patch of the row vertex against every patch of the column vertex
+    pair = np.repeat(np.arange(len(rows)), per_pair)
+    local = np.arange(per_pair.sum()) - np.repeat(np.cumsum(per_pair) - per_pair, per_pair)
+    entry_a = prolong.indptr[rows][pair] + local // count_b[pair]
+    entry_b = prolong.indptr[cols][pair] + local % count_b[pair]
+    keys = prolong.indices[entry_a].astype(np.int64) * patches + prolong.indices[entry_b]
+    blocks, row = np.unique(keys, return_inverse=True)
+    weights = prolong.data[entry_a] * prolong.data[entry_b]
+    operator = sp.csr_matrix((weights, (row.reshape(-1), pair)), shape=(len(blocks), len(rows)))
+    operator.sum_duplicates()
+    return operator, blocks
+
+
+def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
+    """A scipy CSR matrix as a float64 torch sparse CSR tensor on `device` (torch's CSR matrix
+    product is its fastest sparse-dense one on the CPU and runs on CUDA)."""
+    with warnings.catch_warnings():  # torch flags its CSR layout as beta on first use; it is what we need
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        return torch.sparse_csr_tensor(torch.from_numpy(matrix.indptr.astype(np.int64)).to(device),
+                                       torch.from_numpy(matrix.indices.astype(np.int64)).to(device),
+                                       torch.from_numpy(matrix.data.astype(np.float64)).to(device), size=matrix.shape,
+                                       device=device, check_invariants=True)
+
+
 @dataclass(frozen=True)
 class _BatchStructure:
-    """What a packed batch's coarse space keeps of its topology: P (as 3×3 blocks, and as COO
-    rows, columns and weights on the cloth's device), each garment's coarse dofs, and where each
-    face's corner-pair blocks of K go."""
+    """What a packed batch's coarse space keeps of its topology, on the cloth's device: P (as COO
+    rows, columns and weights), where each face's corner-pair blocks of K go, the Galerkin
+    operator G, where each entry of G · K goes in the garments' dense coarse matrices (one flat
+    buffer, garment after garment), and each garment's coarse dofs and place in that buffer."""
 
     num_patches: int
     coarse_ranges: list[tuple[int, int]]  # coarse dofs [c0, c1) of each garment
-    p3: sp.bsr_matrix
-    p3_t: sp.bsr_matrix
-    pair_cols: np.ndarray
-    pair_indptr: np.ndarray
+    matrix_offsets: list[int]  # where each garment's (c1 - c0)² dense coarse matrix starts in the buffer
+    buffer_size: int  # all garments' dense coarse matrices
+    num_pairs: int
     pair_of_corner: Tensor
     pair_of_vertex: Tensor
+    galerkin: Tensor  # sparse CSR (coarse blocks, pairs), float64
+    destination: Tensor  # (coarse blocks · 9,) int64: buffer index of each block entry (a, b)
     rows: Tensor
     cols: Tensor
     weights: Tensor
@@ -122,7 +158,7 @@ class _BatchStructure:
     @staticmethod
     def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], levels: int,
               smoothing: int, device: torch.device) -> _BatchStructure:
-        parts, coarse_ranges, v0, f0, c0 = [], [], 0, 0, 0
+        parts, coarse_ranges, matrix_offsets, v0, f0, c0, offset = [], [], [], 0, 0, 0, 0
         for nv, nf in zip(vert_counts, face_counts):
             local = faces[f0:f0 + nf] - v0
             if nf and (local.min() < 0 or local.max() >= nv):
@@ -130,24 +166,37 @@ class _BatchStructure:
             part = _garment_prolongation(np.ascontiguousarray(local), nv, levels, smoothing)
             parts.append(part)
             coarse_ranges.append((3 * c0, 3 * (c0 + part.shape[1])))
-            c0 += part.shape[1]
+            matrix_offsets.append(offset)
+            c0, offset = c0 + part.shape[1], offset + (3 * part.shape[1]) ** 2
             v0, f0 = v0 + nv, f0 + nf
         prolong = sp.block_diag(parts, format="csr")  # (V, patches)
-        p3 = sp.kron(prolong, sp.identity(3), format="csr")  # (3V, 3·patches), dof 3·v + axis
         # K as 3×3 blocks of the vertex pairs that share a face: where each face-corner pair goes
         num_verts = sum(vert_counts)
         key = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
         pairs, where = np.unique(key, return_inverse=True)
+        operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
+        # block (I, J) of garment g, entry (a, b) → its dense matrix, row 3 (I − I₀) + a, column 3 (J − I₀) + b
+        patch_garment = np.repeat(np.arange(len(parts)), [p.shape[1] for p in parts])
+        first_patch = np.array([r[0] // 3 for r in coarse_ranges], dtype=np.int64)
+        size = np.array([r[1] - r[0] for r in coarse_ranges], dtype=np.int64)
+        big, small = blocks // prolong.shape[1], blocks % prolong.shape[1]
+        garment = patch_garment[big]
+        row = 3 * (big - first_patch[garment])[:, None] + np.arange(3)  # (blocks, 3)
+        col = 3 * (small - first_patch[garment])[:, None] + np.arange(3)
+        destination = (np.array(matrix_offsets, dtype=np.int64)[garment][:, None, None]
+                       + row[:, :, None] * size[garment][:, None, None] + col[:, None, :])
         coo = prolong.tocoo()
         return _BatchStructure(
             num_patches=prolong.shape[1],
             coarse_ranges=coarse_ranges,
-            p3=p3.tobsr(blocksize=(3, 3)),
-            p3_t=p3.T.tobsr(blocksize=(3, 3)),
-            pair_cols=(pairs % num_verts).astype(np.int32),
-            pair_indptr=np.concatenate([[0], np.cumsum(np.bincount(pairs // num_verts, minlength=num_verts))]),
+            matrix_offsets=matrix_offsets,
+            buffer_size=offset,
+            num_pairs=len(pairs),
             pair_of_corner=torch.from_numpy(where.astype(np.int32).reshape(-1, 9)).to(device),
-            pair_of_vertex=torch.from_numpy(np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))),
+            pair_of_vertex=torch.from_numpy(
+                np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))).to(device),
+            galerkin=_sparse_csr(operator, device),
+            destination=torch.from_numpy(destination.reshape(-1)).to(device),
             rows=torch.from_numpy(coo.row.astype(np.int64)).to(device),
             cols=torch.from_numpy(coo.col.astype(np.int64)).to(device),
             weights=torch.from_numpy(coo.data).to(device=device, dtype=torch.float64),
@@ -190,17 +239,16 @@ class CoarseSpace:
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): extra
         per-vertex stiffness added to K (the solver's contact blocks), or None."""
+        s = self._s
         with torch.no_grad():
-            blocks = pair_blocks(x, self.cloth, self._s.pair_of_corner, len(self._s.pair_cols))
-            blocks = blocks.cpu()  # the Galerkin product is formed on the host (module docstring)
+            blocks = pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
             if vertex_blocks is not None:
-                blocks.index_add_(0, self._s.pair_of_vertex, vertex_blocks.detach().double().cpu())
-        n = 3 * self.cloth.num_verts
-        stiffness = sp.bsr_matrix((blocks.numpy(), self._s.pair_cols, self._s.pair_indptr), shape=(n, n))
-        coarse = (self._s.p3_t @ (stiffness @ self._s.p3)).tocsr()
-        device = self.cloth.device
-        self._factors = [_regularized_cholesky(torch.from_numpy(coarse[c0:c1, c0:c1].toarray())).to(device)
-                         for c0, c1 in self._s.coarse_ranges]
+                blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
+            coarse = s.galerkin @ blocks.reshape(-1, 9)  # (coarse blocks, 9): Pᵀ K P block by block
+            dense = blocks.new_zeros(s.buffer_size)
+            dense[s.destination] = coarse.reshape(-1)
+        self._factors = [_regularized_cholesky(dense[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
+                         for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
 
     def solve(self, r: Tensor) -> Tensor:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""
