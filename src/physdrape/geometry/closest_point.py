@@ -1,22 +1,198 @@
-"""Exact closest point on triangles (torch, batched, differentiable, any dtype).
+"""Exact closest point on triangles, and the pseudo-normal of the feature it lies on (NVIDIA Warp
+kernels, batched, differentiable).
 
 The geometry half of the body-surface queries (`geometry.proximity`): the BVH finds the closest
-triangle, this recomputes the closest point on it in the dtype of the input so that it is
-differentiable w.r.t. the query points and the triangle corners.
+triangle of each point, `closest_point_on_indexed_triangles` computes the closest point on it in
+float64, differentiable w.r.t. the query points and the triangle corners, and
+`feature_pseudo_normals` picks the angle-weighted pseudo-normal of the face, edge or vertex it
+lies on. `closest_point_on_triangle` is the same computation on triangles given by their corners
+(the garment sizing and the skinning transfer, on candidate triangles of their own).
+
+One kernel launch per call replaces a chain of a few dozen torch ops over the points (region
+tests, selections, gathers), each costing more in per-op overhead than in arithmetic; the
+kernels run on the CPU (compiled native code) or on CUDA, wherever the tensors live.
+
+Differentiation: the closest point is wrapped in a `torch.autograd.Function` whose backward is
+the kernel's adjoint, which Warp generates from the same source: the exact derivative of the
+region's formula (a face's plane projection, an edge's line projection, a vertex), w.r.t. the
+points and the corners. The pseudo-normal is not differentiated. Double backward is not
+supported.
+
+Numerics: float64 whatever the inputs' dtype (they are converted in, the results out).
 """
 
-from __future__ import annotations
+# No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
+import functools
 
 import torch
 from torch import Tensor
 
-__all__ = ["closest_point_on_triangle"]
+from physdrape.warp_runtime import torch_stream, warp
+
+__all__ = ["closest_point_on_indexed_triangles", "closest_point_on_triangle", "feature_pseudo_normals"]
 
 
-def _safe_div(num: Tensor, den: Tensor) -> Tensor:
-    """num / den where den != 0, else 0 (keeps NaNs out of the unselected torch.where branches)."""
-    ok = den != 0
-    return torch.where(ok, num / torch.where(ok, den, torch.ones_like(den)), torch.zeros_like(num))
+@functools.cache
+def _kernels() -> dict:
+    """Define the kernels (first call only; Warp caches the compiled code on disk)."""
+    wp = warp()
+    f64 = wp.float64
+
+    @wp.func
+    def ratio(num: wp.float64, den: wp.float64):
+        """num / den where den ≠ 0, else 0 (the denominator of an unselected region can vanish;
+        dividing by a safe one keeps inf out of the adjoint)."""
+        ok = den != f64(0.0)
+        return wp.where(ok, num / wp.where(ok, den, f64(1.0)), f64(0.0))
+
+    @wp.func
+    def closest_bary(x: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):
+        """Barycentric coordinates (wa, wb, wc) of the closest point to x on triangle (a, b, c)
+        (Ericson, Real-Time Collision Detection, Sec. 5.1.5). A coordinate is exactly zero when
+        the point lies on the opposite edge, two are at a vertex."""
+        ab = b - a
+        ac = c - a
+        ap = x - a
+        bp = x - b
+        cp = x - c
+        d1 = wp.dot(ab, ap)
+        d2 = wp.dot(ac, ap)
+        d3 = wp.dot(ab, bp)
+        d4 = wp.dot(ac, bp)
+        d5 = wp.dot(ab, cp)
+        d6 = wp.dot(ac, cp)
+        va = d3 * d6 - d5 * d4
+        vb = d5 * d2 - d1 * d6
+        vc = d1 * d4 - d3 * d2
+        zero = f64(0.0)
+        one = f64(1.0)
+        # the interior, then each region in reverse priority order, so the first of Ericson's
+        # tests that holds wins
+        den = va + vb + vc
+        v_in = ratio(vb, den)
+        w_in = ratio(vc, den)
+        bary = wp.vec3d(one - v_in - w_in, v_in, w_in)
+        w_bc = ratio(d4 - d3, (d4 - d3) + (d5 - d6))
+        bary = wp.where((va <= zero) and (d4 - d3 >= zero) and (d5 - d6 >= zero),
+                        wp.vec3d(zero, one - w_bc, w_bc), bary)
+        w_ac = ratio(d2, d2 - d6)
+        bary = wp.where((vb <= zero) and (d2 >= zero) and (d6 <= zero), wp.vec3d(one - w_ac, zero, w_ac), bary)
+        bary = wp.where((d6 >= zero) and (d5 <= d6), wp.vec3d(zero, zero, one), bary)
+        v_ab = ratio(d1, d1 - d3)
+        bary = wp.where((vc <= zero) and (d1 >= zero) and (d3 <= zero), wp.vec3d(one - v_ab, v_ab, zero), bary)
+        bary = wp.where((d3 >= zero) and (d4 <= d3), wp.vec3d(zero, one, zero), bary)
+        bary = wp.where((d1 <= zero) and (d2 <= zero), wp.vec3d(one, zero, zero), bary)
+        return bary
+
+    @wp.kernel
+    def closest_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
+                       corners: wp.array2d(dtype=wp.int32), closest: wp.array(dtype=wp.vec3d),
+                       bary: wp.array(dtype=wp.vec3d)):
+        i = wp.tid()
+        a = verts[corners[i, 0]]
+        b = verts[corners[i, 1]]
+        c = verts[corners[i, 2]]
+        w = closest_bary(points[i], a, b, c)
+        bary[i] = w
+        closest[i] = w[0] * a + w[1] * b + w[2] * c
+
+    @wp.kernel(enable_backward=False)
+    def pseudo_normal_kernel(bary: wp.array(dtype=wp.vec3d), body: wp.array(dtype=wp.int32),
+                             face: wp.array(dtype=wp.int32), faces: wp.array2d(dtype=wp.int32),
+                             face_normals: wp.array2d(dtype=wp.vec3d), edge_normals: wp.array3d(dtype=wp.vec3d),
+                             vertex_normals: wp.array2d(dtype=wp.vec3d), out: wp.array(dtype=wp.vec3d)):
+        i = wp.tid()
+        w = bary[i]
+        b = body[i]
+        f = face[i]
+        zero = f64(0.0)
+        zeros = int(w[0] == zero) + int(w[1] == zero) + int(w[2] == zero)
+        n = face_normals[b, f]
+        if zeros == 1:  # on the edge opposite the zero corner
+            k = 0
+            if w[1] == zero:
+                k = 1
+            if w[2] == zero:
+                k = 2
+            n = edge_normals[b, f, k]
+        if zeros >= 2:  # at the corner of the largest weight
+            k = 0
+            if w[1] > w[0]:
+                k = 1
+            if w[2] > w[k]:
+                k = 2
+            n = vertex_normals[b, faces[f, k]]
+        out[i] = n
+
+    return {"wp": wp, "closest": closest_kernel, "pseudo_normal": pseudo_normal_kernel}
+
+
+def _vec3(wp, t: Tensor):
+    return wp.from_torch(t, dtype=wp.vec3d, requires_grad=False, return_ctype=True)
+
+
+def _int2d(wp, t: Tensor):
+    return wp.from_torch(t, dtype=wp.int32, requires_grad=False, return_ctype=True)
+
+
+class _ClosestPoint(torch.autograd.Function):
+    """(closest, bary) = kernel(points, verts, corners) with the kernel's adjoint as the backward.
+
+    points (M, 3) and verts (N, 3) float64 contiguous; corners (M, 3) int32: the rows of verts
+    that are each point's triangle."""
+
+    @staticmethod
+    def forward(ctx, points: Tensor, verts: Tensor, corners: Tensor) -> tuple[Tensor, Tensor]:
+        wp = _kernels()["wp"]
+        closest, bary = torch.empty_like(points), torch.empty_like(points)
+        if points.shape[0]:
+            with torch_stream(points.device):
+                wp.launch(_kernels()["closest"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                          inputs=[_vec3(wp, points), _vec3(wp, verts), _int2d(wp, corners)],
+                          outputs=[_vec3(wp, closest), _vec3(wp, bary)])
+        ctx.save_for_backward(points, verts, corners)
+        return closest, bary
+
+    @staticmethod
+    def backward(ctx, grad_closest: Tensor, grad_bary: Tensor):
+        if torch.is_grad_enabled():  # a graph of this backward (create_graph=True) would miss the inputs
+            raise RuntimeError("the closest point is differentiable once: its backward cannot be "
+                               "differentiated again (create_graph=True, torch.func.hessian)")
+        points, verts, corners = ctx.saved_tensors
+        wp = _kernels()["wp"]
+        grad_points, grad_verts = torch.zeros_like(points), torch.zeros_like(verts)
+        grads = [torch.zeros_like(points) if g is None else g.to(torch.float64).contiguous()
+                 for g in (grad_closest, grad_bary)]
+        if points.shape[0]:
+            with torch_stream(points.device):
+                wp.launch(_kernels()["closest"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                          inputs=[_vec3(wp, points), _vec3(wp, verts), _int2d(wp, corners)],
+                          outputs=[_vec3(wp, torch.empty_like(points)), _vec3(wp, torch.empty_like(points))],
+                          adj_inputs=[_vec3(wp, grad_points), _vec3(wp, grad_verts), _int2d(wp, corners)],
+                          adj_outputs=[_vec3(wp, grads[0]), _vec3(wp, grads[1])], adjoint=True)
+        return grad_points, grad_verts, None
+
+
+def closest_point_on_indexed_triangles(points: Tensor, verts: Tensor, corners: Tensor) -> tuple[Tensor, Tensor]:
+    """Exact closest point of each point on its triangle, the triangles given as rows of a vertex
+    table.
+
+    Args:
+        points: query points [m], shape (M, 3).
+        verts: vertex positions [m], shape (N, 3), same dtype as points.
+        corners: each point's triangle as three row indices into verts, shape (M, 3) int.
+
+    Returns:
+        p: closest points [m], shape (M, 3), in points' dtype, differentiable w.r.t. points and
+            verts.
+        bary: barycentric coordinates (wa, wb, wc) of p, shape (M, 3); a coordinate is exactly
+            zero when p lies on the opposite edge (two are zero at a vertex).
+    """
+    if points.dtype != verts.dtype:
+        raise TypeError(f"points are {points.dtype} but verts are {verts.dtype}; convert one of them explicitly")
+    p, bary = _ClosestPoint.apply(points.to(torch.float64).contiguous(), verts.to(torch.float64).contiguous(),
+                                  corners.to(torch.int32).contiguous())
+    return p.to(points.dtype), bary.to(points.dtype)
 
 
 def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
@@ -31,40 +207,42 @@ def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tup
         bary: barycentric coordinates (wa, wb, wc) of p, shape (..., 3); a coordinate is exactly
             zero when p lies on the opposite edge (two are zero at a vertex).
     """
-    ab, ac, ap = b - a, c - a, x - a
-    d1 = (ab * ap).sum(-1)
-    d2 = (ac * ap).sum(-1)
-    bp = x - b
-    d3 = (ab * bp).sum(-1)
-    d4 = (ac * bp).sum(-1)
-    cp = x - c
-    d5 = (ab * cp).sum(-1)
-    d6 = (ac * cp).sum(-1)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
+    x, a, b, c = torch.broadcast_tensors(x, a, b, c)
+    lead = x.shape[:-1]
+    num = x[..., 0].numel()
+    corners = torch.arange(3 * num, device=x.device).reshape(3, num).T
+    verts = torch.cat([a.reshape(num, 3), b.reshape(num, 3), c.reshape(num, 3)])
+    p, bary = closest_point_on_indexed_triangles(x.reshape(num, 3), verts, corners)
+    return p.reshape(*lead, 3), bary.reshape(*lead, 3)
 
-    one = torch.ones_like(d1)
-    zero = torch.zeros_like(d1)
-    # Interior.
-    den = va + vb + vc
-    v_in = _safe_div(vb, den)
-    w_in = _safe_div(vc, den)
-    bary = torch.stack([one - v_in - w_in, v_in, w_in], -1)
 
-    def pick(mask: Tensor, new: Tensor, cur: Tensor) -> Tensor:
-        return torch.where(mask[..., None], new, cur)
+@torch.no_grad()
+def feature_pseudo_normals(bary: Tensor, body: Tensor, face: Tensor, faces: Tensor, face_normals: Tensor,
+                           edge_normals: Tensor, vertex_normals: Tensor) -> Tensor:
+    """The angle-weighted pseudo-normal of the feature each closest point lies on, read off its
+    barycentrics: no zero → the face's normal, one zero → the normal of the edge opposite that
+    corner, two zeros → the vertex's (`closest_point_on_indexed_triangles` returns exact zeros).
 
-    # Regions in reverse priority order, so the first test in Ericson's order wins.
-    w_bc = _safe_div(d4 - d3, (d4 - d3) + (d5 - d6))
-    bary = pick((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), torch.stack([zero, one - w_bc, w_bc], -1), bary)
-    w_ac = _safe_div(d2, d2 - d6)
-    bary = pick((vb <= 0) & (d2 >= 0) & (d6 <= 0), torch.stack([one - w_ac, zero, w_ac], -1), bary)
-    bary = pick((d6 >= 0) & (d5 <= d6), torch.stack([zero, zero, one], -1), bary)
-    v_ab = _safe_div(d1, d1 - d3)
-    bary = pick((vc <= 0) & (d1 >= 0) & (d3 <= 0), torch.stack([one - v_ab, v_ab, zero], -1), bary)
-    bary = pick((d3 >= 0) & (d4 <= d3), torch.stack([zero, one, zero], -1), bary)
-    bary = pick((d1 <= 0) & (d2 <= 0), torch.stack([one, zero, zero], -1), bary)
+    Args:
+        bary: barycentric coordinates of the closest points, shape (M, 3).
+        body, face: each point's body and face (a row of `faces`), shapes (M,) int.
+        faces: the bodies' triangles, shape (F, 3) int.
+        face_normals: (B, F, 3); edge_normals: (B, F, 3, 3), face f's edge opposite its corner k
+            at [:, f, k]; vertex_normals: (B, N, 3); unit vectors.
 
-    p = bary[..., 0:1] * a + bary[..., 1:2] * b + bary[..., 2:3] * c
-    return p, bary
+    Returns:
+        (M, 3) in face_normals' dtype; not differentiated.
+    """
+    wp = _kernels()["wp"]
+    out = torch.empty(bary.shape[0], 3, dtype=torch.float64, device=bary.device)
+
+    if bary.shape[0]:
+        with torch_stream(bary.device):
+            wp.launch(_kernels()["pseudo_normal"], dim=bary.shape[0], device=wp.device_from_torch(bary.device),
+                      inputs=[_vec3(wp, bary.to(torch.float64).contiguous()),
+                              wp.from_torch(body.to(torch.int32).contiguous(), dtype=wp.int32),
+                              wp.from_torch(face.to(torch.int32).contiguous(), dtype=wp.int32),
+                              _int2d(wp, faces.to(torch.int32).contiguous()),
+                              *(_vec3(wp, t.to(torch.float64).contiguous()) for t in (face_normals, edge_normals, vertex_normals))],
+                      outputs=[_vec3(wp, out)])
+    return out.to(face_normals.dtype)

@@ -11,10 +11,12 @@ Split of the work:
    (``wp.Mesh``, built once per body, ``refit()`` when only the vertex positions change) finds the
    closest triangle of every point in float32 and, if asked, the generalized winding number
    (Warp's fast winding number, Barill et al. 2018) for the inside test.
-2. **Geometry (differentiable, input dtype, `geometry.closest_point`)**: the closest point on the
-   found triangle is recomputed in torch (Ericson's region test) in the dtype of the input, so
-   ``closest``, ``signed_distance`` and ``normal`` are differentiable w.r.t. the points and the
-   body vertices.
+2. **Geometry (differentiable, float64, `geometry.closest_point`)**: the closest point on the
+   found triangle is recomputed (Ericson's region test, a Warp kernel with its adjoint as the
+   backward) in float64 and returned in the dtype of the input, so ``closest``,
+   ``signed_distance`` and ``normal`` are differentiable w.r.t. the points and the body
+   vertices; the pseudo-normal of the feature it lies on is read off its barycentrics in the
+   same way.
 3. **Inside test only where the sign is in doubt** (``SignMethod.WINDING_NUMBER``): the
    pseudo-normal sign of the closest feature is exact wherever the body surface around it is a
    clean, closed, consistently oriented sheet, and the winding number (about as costly as the
@@ -56,7 +58,10 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.body_bvh import BodyBVH
-from physdrape.geometry.closest_point import closest_point_on_triangle
+from physdrape.geometry.closest_point import (
+    closest_point_on_indexed_triangles,
+    feature_pseudo_normals,
+)
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
 
@@ -256,7 +261,7 @@ class BodySurface:
         one.faces, one._edge_nbr, one._border = self.faces, self._edge_nbr, self._border
         one.verts = self.verts[index:index + 1]
         one._vertex_normals = None if self._vertex_normals is None else self._vertex_normals[index:index + 1]
-        one._face_normals = None if self._face_normals is None else self._face_normals[index:index + 1]
+        one._face_normals = None if self._face_normals is None else tuple(n[index:index + 1] for n in self._face_normals)
         one._doubtful = None if self._doubtful is None else self._doubtful[index:index + 1]
         one._points_asked = self._points_asked
         one._bvh = self._bvh.select(index)
@@ -348,38 +353,32 @@ class BodySurface:
                 self._vertex_normals = angle_weighted_vertex_normals(self.verts.detach(), self.faces)
         return self._vertex_normals
 
-    def _unit_face_normals(self) -> Tensor:
-        """Unit normals of all bodies' faces, shape (B, Fb, 3); cached until update()."""
+    def _feature_normals(self) -> tuple[Tensor, Tensor, Tensor]:
+        """Unit normals of all bodies' faces (B, Fb, 3), edges (B, Fb, 3, 3) and vertices (B, Vb,
+        3), float64 (what the pseudo-normal kernel reads): face f's edge opposite its corner k at
+        [:, f, k], the normalised sum of the normals of the two faces that share it (the face's own
+        on a hole's border); cached until update()."""
         if self._face_normals is None:
             with torch.no_grad():
-                self._face_normals = triangle_normals(self.verts.detach()[:, self.faces])
+                faces = triangle_normals(self.verts.detach().double()[:, self.faces])
+                nbr = self._edge_nbr
+                other = torch.where((nbr >= 0)[None, :, :, None], faces[:, nbr.clamp_min(0)], 0.0)
+                edges = faces[:, :, None, :] + other
+                edges = edges / edges.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(edges.dtype).tiny)
+                self._face_normals = (faces, edges, self._vertex_pseudo_normals().double().contiguous())
         return self._face_normals
+
+    def _corner_rows(self, body: Tensor, face: Tensor) -> Tensor:
+        """Rows of the corners of each point's face in the bodies' vertex table flattened to
+        (B·Vb, 3), shape (M, 3)."""
+        return body[:, None] * self.num_verts + self.faces[face]
 
     @torch.no_grad()
     def _pseudo_normals(self, body: Tensor, face: Tensor, bary: Tensor) -> Tensor:
-        """Angle-weighted pseudo-normal of the closest feature (face, edge or vertex), shape (M, 3).
-
-        The feature is read off the barycentrics: no zero -> face, one zero -> the edge opposite
-        that corner, two zeros -> the vertex (``closest_point_on_triangle`` returns exact zeros).
-        Not differentiated (used for the sign, and as the direction of on-surface points).
-        """
-        face_normals = self._unit_face_normals()
-        out = face_normals[body, face]
-        zero = bary == 0
-        num_zero = zero.sum(-1)
-        on_edge = num_zero == 1
-        if on_edge.any():
-            corner = torch.argmax(zero.to(torch.int8), dim=-1)
-            nbr = self._edge_nbr[face, corner]
-            other = face_normals[body, nbr.clamp_min(0)]
-            edge_n = out + torch.where((nbr >= 0)[:, None], other, torch.zeros_like(other))
-            edge_n = edge_n / edge_n.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(edge_n.dtype).tiny)
-            out = torch.where(on_edge[:, None], edge_n, out)
-        at_vertex = num_zero >= 2
-        if at_vertex.any():
-            vertex = self.faces[face].gather(1, torch.argmax(bary, dim=-1, keepdim=True))[:, 0]
-            out = torch.where(at_vertex[:, None], self._vertex_pseudo_normals()[body, vertex], out)
-        return out
+        """Angle-weighted pseudo-normal of the closest feature (face, edge or vertex), shape (M, 3),
+        read off the barycentrics (`geometry.closest_point.feature_pseudo_normals`). Not
+        differentiated (used for the sign, and as the direction of on-surface points)."""
+        return feature_pseudo_normals(bary, body, face, self.faces, *self._feature_normals()).to(bary.dtype)
 
     def query(self, points: Tensor, *, body_index: Tensor | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
@@ -439,9 +438,7 @@ class BodySurface:
             body32 = body.to(torch.int32).contiguous()
             face, _ = self._search(x32, body32)
 
-        tri = self.faces[face]  # (M, 3)
-        corners = self.verts[body[:, None], tri]  # (M, 3, 3)
-        p, bary = closest_point_on_triangle(x, corners[:, 0], corners[:, 1], corners[:, 2])
+        p, bary = closest_point_on_indexed_triangles(x, self.verts.reshape(-1, 3), self._corner_rows(body, face))
         r = x - p
         dist = r.norm(dim=-1)
         near = dist <= self.near_tol

@@ -1,0 +1,85 @@
+"""The Warp closest-point kernel against its torch twin (`closest_point_reference`), values and
+gradients, in every region of the triangle, and the feature pseudo-normals it selects."""
+
+import pytest
+import torch
+from closest_point_reference import closest_point_on_triangle as reference
+
+from physdrape.geometry.closest_point import (
+    closest_point_on_indexed_triangles,
+    closest_point_on_triangle,
+    feature_pseudo_normals,
+)
+
+
+def _cases(num=3000, seed=0):
+    """Random triangles and points around them (every Voronoi region is hit), plus points on the
+    corners and edges themselves."""
+    g = torch.Generator().manual_seed(seed)
+    tri = torch.rand(num, 3, 3, generator=g, dtype=torch.float64)
+    x = torch.rand(num, 3, generator=g, dtype=torch.float64) * 3 - 1
+    x[:50] = tri[:50, 0]  # exactly on a corner
+    x[50:100] = 0.5 * (tri[50:100, 1] + tri[50:100, 2])  # exactly on an edge
+    return x, tri
+
+
+def test_the_kernel_matches_the_torch_twin_in_every_region():
+    x, tri = _cases()
+    p, bary = closest_point_on_triangle(x, tri[:, 0], tri[:, 1], tri[:, 2])
+    p_ref, bary_ref = reference(x, tri[:, 0], tri[:, 1], tri[:, 2])
+    torch.testing.assert_close(p, p_ref, rtol=0, atol=1e-14)
+    torch.testing.assert_close(bary, bary_ref, rtol=0, atol=1e-14)
+    assert torch.equal(bary == 0, bary_ref == 0)  # the same exact zeros: the same feature
+    zeros = (bary == 0).sum(-1)
+    assert (zeros == 0).any() and (zeros == 1).any() and (zeros == 2).any()  # all three kinds of region
+
+
+def test_the_gradients_are_the_torch_twins_and_pass_gradcheck():
+    x, tri = _cases(num=2000, seed=1)
+    weights = torch.randn(2, *x.shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+
+    def loss(fn, x, tri):
+        p, bary = fn(x, tri[:, 0], tri[:, 1], tri[:, 2])
+        return (p * weights[0]).sum() + (bary * weights[1]).sum()
+
+    xr, tr = x.clone().requires_grad_(True), tri.clone().requires_grad_(True)
+    fast = torch.autograd.grad(loss(closest_point_on_triangle, xr, tr), (xr, tr))
+    slow = torch.autograd.grad(loss(reference, xr, tr), (xr, tr))
+    for a, b in zip(fast, slow):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+    few = slice(100, 120)  # away from region borders: finite differences stay in one region
+    assert torch.autograd.gradcheck(lambda x, t: closest_point_on_triangle(x, t[:, 0], t[:, 1], t[:, 2]),
+                                    (xr[few].detach().requires_grad_(), tr[few].detach().requires_grad_()))
+
+
+def test_indexed_triangles_share_vertices_and_keep_the_dtype():
+    verts = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]], requires_grad=True)
+    corners = torch.tensor([[0, 1, 2], [1, 3, 2]])
+    points = torch.tensor([[0.2, 0.2, 0.5], [0.9, 0.9, -0.3]], requires_grad=True)
+    p, bary = closest_point_on_indexed_triangles(points, verts, corners)
+    assert p.dtype == torch.float32 and bary.dtype == torch.float32
+    torch.testing.assert_close(p, torch.tensor([[0.2, 0.2, 0.0], [0.9, 0.9, 0.0]]))
+    p.sum().backward()
+    # the plane projection moves with the in-plane components of the points...
+    torch.testing.assert_close(points.grad, torch.tensor([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]]))
+    # ...and the whole plane with its corners, each by its barycentric weight: a shared vertex sums both
+    assert torch.allclose(verts.grad[:, 2].sum(), torch.tensor(2.0))
+    with pytest.raises(TypeError, match="convert one of them"):
+        closest_point_on_indexed_triangles(points.double(), verts, corners)
+    with pytest.raises(RuntimeError, match="once"):
+        q, _ = closest_point_on_indexed_triangles(points, verts, corners)
+        torch.autograd.grad(q.sum(), points, create_graph=True)
+
+
+def test_pseudo_normals_are_picked_by_the_feature():
+    faces = torch.tensor([[0, 1, 2]])
+    face_normals = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=torch.float64)
+    edge_normals = torch.tensor([[[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]]], dtype=torch.float64)
+    vertex_normals = torch.tensor([[[0.6, 0.8, 0.0], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]]], dtype=torch.float64)
+    bary = torch.tensor([[0.2, 0.3, 0.5], [0.0, 0.4, 0.6], [0.5, 0.0, 0.5], [0.3, 0.7, 0.0], [0.0, 1.0, 0.0],
+                         [0.0, 0.0, 1.0]], dtype=torch.float64)
+    zero = torch.zeros(len(bary), dtype=torch.int64)
+    n = feature_pseudo_normals(bary, zero, zero, faces, face_normals, edge_normals, vertex_normals)
+    expected = torch.stack([face_normals[0, 0], edge_normals[0, 0, 0], edge_normals[0, 0, 1], edge_normals[0, 0, 2],
+                            vertex_normals[0, 1], vertex_normals[0, 2]])
+    torch.testing.assert_close(n, expected, rtol=0, atol=0)
