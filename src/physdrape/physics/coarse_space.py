@@ -137,10 +137,10 @@ def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
 
 @dataclass(frozen=True)
 class _BatchStructure:
-    """What a packed batch's coarse space keeps of its topology, on the cloth's device: P (as COO
-    rows, columns and weights), where each face's corner-pair blocks of K go, the Galerkin
-    operator G, where each entry of G · K goes in the garments' dense coarse matrices (one flat
-    buffer, garment after garment), and each garment's coarse dofs and place in that buffer."""
+    """What a packed batch's coarse space keeps of its topology, on the cloth's device: P and Pᵀ
+    (sparse CSR, float64), where each face's corner-pair blocks of K go, the Galerkin operator G,
+    where each entry of G · K goes in the garments' dense coarse matrices (one flat buffer,
+    garment after garment), and each garment's coarse dofs and place in that buffer."""
 
     num_patches: int
     coarse_ranges: list[tuple[int, int]]  # coarse dofs [c0, c1) of each garment
@@ -151,9 +151,8 @@ class _BatchStructure:
     pair_of_vertex: Tensor
     galerkin: Tensor  # sparse CSR (coarse blocks, pairs), float64
     destination: Tensor  # (coarse blocks · 9,) int64: buffer index of each block entry (a, b)
-    rows: Tensor
-    cols: Tensor
-    weights: Tensor
+    prolong: Tensor  # P, sparse CSR (V, patches)
+    restrict: Tensor  # Pᵀ, sparse CSR (patches, V)
 
     @staticmethod
     def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], levels: int,
@@ -185,7 +184,6 @@ class _BatchStructure:
         col = 3 * (small - first_patch[garment])[:, None] + np.arange(3)
         destination = (np.array(matrix_offsets, dtype=np.int64)[garment][:, None, None]
                        + row[:, :, None] * size[garment][:, None, None] + col[:, None, :])
-        coo = prolong.tocoo()
         return _BatchStructure(
             num_patches=prolong.shape[1],
             coarse_ranges=coarse_ranges,
@@ -197,9 +195,8 @@ class _BatchStructure:
                 np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))).to(device),
             galerkin=_sparse_csr(operator, device),
             destination=torch.from_numpy(destination.reshape(-1)).to(device),
-            rows=torch.from_numpy(coo.row.astype(np.int64)).to(device),
-            cols=torch.from_numpy(coo.col.astype(np.int64)).to(device),
-            weights=torch.from_numpy(coo.data).to(device=device, dtype=torch.float64),
+            prolong=_sparse_csr(prolong, device),
+            restrict=_sparse_csr(prolong.T.tocsr(), device),
         )
 
 
@@ -254,12 +251,10 @@ class CoarseSpace:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""
         if self._factors is None:
             raise RuntimeError("CoarseSpace.solve before factor: call factor(x) first")
-        weights = self._s.weights[:, None]
-        rows, cols = self._s.rows, self._s.cols
-        coarse_r = torch.zeros(self.num_patches, 3, dtype=torch.float64, device=r.device)
-        coarse_r = coarse_r.index_add(0, cols, weights * r.double()[rows]).reshape(-1, 1)
-        parts = [torch.cholesky_solve(coarse_r[c0:c1], chol)
-                 for (c0, c1), chol in zip(self._s.coarse_ranges, self._factors)]
-        coarse_z = torch.cat(parts).reshape(self.num_patches, 3)
-        z = torch.zeros(r.shape[0], 3, dtype=torch.float64, device=r.device)
-        return z.index_add(0, rows, weights * coarse_z[cols]).to(r.dtype)
+        s = self._s
+        coarse_r = (s.restrict @ r.double()).reshape(-1, 1)
+        parts = []
+        for (c0, c1), chol in zip(s.coarse_ranges, self._factors):  # (L Lᵀ)⁻¹ b: two triangular solves
+            half = torch.linalg.solve_triangular(chol, coarse_r[c0:c1], upper=False)
+            parts.append(torch.linalg.solve_triangular(chol.mT, half, upper=True))
+        return (s.prolong @ torch.cat(parts).reshape(self.num_patches, 3)).to(r.dtype)
