@@ -159,7 +159,7 @@ class StretchingSolver(nn.Module):
             contact = problem.contact_blocks(distance)
             if t % self.refactor_every == 0:
                 coarse.factor(x, contact)
-            z = _precondition(self._stiffness_factor(x.detach(), cloth, contact), coarse, force)
+            z = _precondition(self._stiffness_inverse(x.detach(), cloth, contact), coarse, force)
             if direction is not None:
                 with torch.no_grad():  # Polak-Ribière+, preconditioned; the history is not differentiated
                     beta = per_garment(z.detach() * (force.detach() - last_force))
@@ -199,14 +199,14 @@ class StretchingSolver(nn.Module):
         contact = problem.contact_blocks(problem.distance(x))
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         coarse.factor(x, contact)
-        return partial(_precondition, self._stiffness_factor(x, cloth, contact), coarse)
+        return partial(_precondition, self._stiffness_inverse(x, cloth, contact), coarse)
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
         return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band)
 
     @torch.no_grad()
-    def _stiffness_factor(self, x: Tensor, cloth: Cloth, contact: Tensor | None) -> Tensor:
-        """Cholesky factors of the per-vertex stiffness blocks K_i (strain, bending, contact), (V, 3, 3)."""
+    def _stiffness_inverse(self, x: Tensor, cloth: Cloth, contact: Tensor | None) -> Tensor:
+        """Inverses of the per-vertex stiffness blocks K_i (strain, bending, contact), (V, 3, 3)."""
         blocks = vertex_blocks(x, cloth)
         if contact is not None:
             blocks = blocks + contact
@@ -214,7 +214,7 @@ class StretchingSolver(nn.Module):
         # unstretched flat patch has a rank-deficient block)
         rel = max(1e-6, 100.0 * torch.finfo(x.dtype).eps)
         floor = rel * blocks.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(torch.finfo(x.dtype).tiny)
-        return torch.linalg.cholesky(blocks + floor[:, None, None] * torch.eye(3, dtype=x.dtype, device=x.device))
+        return spd_inverse_3x3(blocks + floor[:, None, None] * torch.eye(3, dtype=x.dtype, device=x.device))
 
     @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,
@@ -251,10 +251,24 @@ def clip_moves(move: Tensor, max_length: float) -> Tensor:
     return move * (max_length / length.clamp_min(max_length))
 
 
-def _precondition(stiffness_factor: Tensor, coarse: CoarseSpace, force: Tensor) -> Tensor:
+def spd_inverse_3x3(blocks: Tensor) -> Tensor:
+    """Inverses of symmetric positive definite 3×3 blocks (..., 3, 3), by their adjugate in
+    float64 (one batched pass of products, where a batched LAPACK factorisation and solve cost
+    a few times more per block), returned in the blocks' dtype."""
+    k = blocks.double()
+    a, b, c = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
+    d, e, f = k[..., 1, 1], k[..., 1, 2], k[..., 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * c00 + b * c01 + c * c02
+    adjugate = torch.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], dim=-1).reshape(k.shape)
+    return (adjugate / det[..., None, None]).to(blocks.dtype)
+
+
+def _precondition(stiffness_inverse: Tensor, coarse: CoarseSpace, force: Tensor) -> Tensor:
     """C F = K⁻¹ F + P (Pᵀ K P)⁻¹ Pᵀ F: forces (V, 3) [N] → moves (V, 3) [m], with K⁻¹ from the
-    per-vertex Cholesky factors (V, 3, 3) and a factored coarse space."""
-    return torch.cholesky_solve(force.unsqueeze(-1), stiffness_factor).squeeze(-1) + coarse.solve(force)
+    per-vertex inverse blocks (V, 3, 3) and a factored coarse space."""
+    return (stiffness_inverse @ force.unsqueeze(-1)).squeeze(-1) + coarse.solve(force)
 
 
 class _Relaxation:
