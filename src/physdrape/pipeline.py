@@ -45,6 +45,11 @@ from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 DEFAULT_DTYPE = torch.float32
 #: The dtype bodies are posed and garments skinned in before the cast to the model's dtype.
 POSE_DTYPE = torch.float64
+#: Body-surface points a drape asks about per garment vertex, at the least: X_init's contact
+#: (V), the network's input (V), the solver's first planes on the vertices and face centroids
+#: (V + F ≈ 3 V), the collision handler's and the metrics' (V + F each). Told to the surfaces
+#: (`BodySurface.expect`), so that a new body finds its doubtful faces before the first query.
+QUERIES_PER_VERTEX = 11
 
 
 def _digest(*arrays: np.ndarray) -> str:
@@ -214,6 +219,9 @@ class DrapePipeline:
             raise ValueError("no jobs to drape")
         device = self.device
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
+        asked = QUERIES_PER_VERTEX * sum(job.template.num_verts for job in jobs)
+        for surface in {posed.surface(self.dtype, where) for where in (posed.state.verts.device, device)}:
+            surface.expect(asked)  # X_init's surface, and the model's where it lives elsewhere
         x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body, job.rest))
                   .to(device=device, dtype=self.dtype) for job in jobs]
         batch = GarmentBatch.pack([self.garment(job.template, job.rest) for job in jobs])

@@ -233,6 +233,20 @@ def test_interpenetrating_parts_inside_follows_winding_number():
     assert not doubtful[centroids[:, 0] < -0.05].any()  # the far side of the big sphere is clean
 
 
+def test_a_surface_told_of_its_workload_finds_its_doubtful_faces_first():
+    verts, faces = icosphere(3, 0.15)
+    told_little, told_much = BodySurface(verts, faces), BodySurface(verts, faces)
+    told_little.expect(len(verts) // 2)  # fewer points than body vertices: winding numbers are cheaper
+    assert told_little._doubtful is None
+    told_much.expect(len(verts))
+    assert told_much._doubtful is not None
+    x = sample_points(verts, faces, 300, 100, seed=5)
+    assert torch.equal(told_little.query(x).inside, told_much.query(x).inside)
+    pseudo = BodySurface(verts, faces, sign_method=SignMethod.PSEUDO_NORMAL)
+    pseudo.expect(10 * len(verts))  # no winding numbers at all: nothing to find
+    assert pseudo._doubtful is None
+
+
 def test_gradients_match_finite_differences():
     verts, faces = bumpy_blob()
     x = sample_points(verts, faces, 160, 40, seed=3)

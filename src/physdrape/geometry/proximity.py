@@ -346,6 +346,15 @@ class BodySurface:
         self._doubtful = near[:, self.faces].any(dim=-1)
         return self._doubtful
 
+    def expect(self, points: int) -> None:
+        """Say that about `points` more points will be asked about (a caller that knows its
+        workload): when their winding numbers would cost more than finding the doubtful faces
+        (one winding number per body vertex), the doubtful faces are found now, and the points
+        asked from here on get the winding number only where the sign is in doubt."""
+        if (self.sign_method is SignMethod.WINDING_NUMBER and self._doubtful is None
+                and self._points_asked + points >= self.verts.shape[0] * self.verts.shape[1]):
+            self.doubtful_faces()
+
     def _vertex_pseudo_normals(self) -> Tensor:
         """Angle-weighted vertex normals of all bodies, shape (B, Vb, 3); cached until update()."""
         if self._vertex_normals is None:
