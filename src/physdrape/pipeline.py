@@ -222,6 +222,7 @@ class DrapePipeline:
         asked = QUERIES_PER_VERTEX * sum(job.template.num_verts for job in jobs)
         for surface in {posed.surface(self.dtype, where) for where in (posed.state.verts.device, device)}:
             surface.expect(asked)  # X_init's surface, and the model's where it lives elsewhere
+            surface.forget_recent()  # what a drape reuses is its own: a repeated drape costs what the first did
         x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body, job.rest))
                   .to(device=device, dtype=self.dtype) for job in jobs]
         batch = GarmentBatch.pack([self.garment(job.template, job.rest) for job in jobs])

@@ -247,6 +247,28 @@ def test_a_surface_told_of_its_workload_finds_its_doubtful_faces_first():
     assert pseudo._doubtful is None
 
 
+def test_a_query_again_searches_only_the_points_that_moved(monkeypatch):
+    verts, faces = bumpy_blob()
+    surface = BodySurface(verts, faces)
+    x = sample_points(verts, faces, 300, 100, seed=6)
+    first = surface.query(x)
+    searched = []
+    search = BodySurface._search
+    monkeypatch.setattr(BodySurface, "_search", lambda self, p, b, **k: (searched.append(len(p)), search(self, p, b, **k))[1])
+    moved = x.clone()
+    moved[:7] += 0.02
+    again = surface.query(moved)
+    assert searched[0] == 7  # the closest-face search (winding numbers may follow for points in doubt)
+    fresh = BodySurface(verts, faces).query(moved)
+    for field in ("closest", "normal", "signed_distance", "face", "bary", "inside"):
+        assert torch.equal(getattr(again, field), getattr(fresh, field)), field
+    assert torch.equal(surface.query(x).face, first.face)
+    surface.update(verts * 1.01)  # the body moved: nothing is reused
+    searched.clear()
+    surface.query(x)
+    assert searched[0] == len(x)
+
+
 def test_gradients_match_finite_differences():
     verts, faces = bumpy_blob()
     x = sample_points(verts, faces, 160, 40, seed=3)
