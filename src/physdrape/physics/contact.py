@@ -120,11 +120,16 @@ def contact_vertex_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, st
                           margin: float) -> Tensor:
     """The 3 × 3 diagonal blocks (V, 3, 3) of E_c's Gauss–Newton Hessian: a vertex's own
     6 k_c ReLU(ε − d) n nᵀ plus 1/9 of each of its faces' centroid blocks. Arguments as
-    `contact_gradient`."""
+    `contact_gradient`. Formed for the samples in the margin only (the others' blocks are zero)."""
     num_verts = distance.shape[0] - faces.shape[0]
     depth = contact_depth(distance, margin=margin)
-    blocks = (6.0 * stiffness * depth)[:, None, None] * normal[:, :, None] * normal[:, None, :]
-    return to_vertices(torch.cat([blocks[:num_verts], blocks[num_verts:] / 3.0]), faces)
+    active = torch.nonzero(depth > 0)[:, 0]
+    n = normal[active]
+    blocks = (6.0 * stiffness * depth[active])[:, None, None] * n[:, :, None] * n[:, None, :]
+    own = active < num_verts
+    out = torch.zeros(num_verts, 3, 3, dtype=blocks.dtype, device=blocks.device).index_add_(0, active[own], blocks[own])
+    corners = faces[active[~own] - num_verts].reshape(-1)
+    return out.index_add_(0, corners, (blocks[~own] / 3.0 / 3.0).repeat_interleave(3, dim=0))
 
 
 def contact_vertices(distance: Tensor, faces: Tensor, *, margin: float) -> Tensor:
