@@ -57,27 +57,18 @@ REGULARIZATION = 1e-6
 #: coarse factor stays small (600 patches: an 1,800 × 1,800 Cholesky per refresh).
 MAX_PATCHES = 600
 
-_CACHE: dict[tuple, sp.csr_matrix] = {}
-_CACHE_SIZE = 1024
-
-
 def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smoothing: int) -> sp.csr_matrix:
-    """P (V, patches) of one garment (local vertex ids), cached by topology; `levels` is raised
-    until the garment has at most MAX_PATCHES patches (or coarsening stops gaining)."""
-    key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], num_verts, levels, smoothing)
-    if key not in _CACHE:
-        if len(_CACHE) >= _CACHE_SIZE:
-            _CACHE.clear()
-        edges = topology.undirected_edges(faces)
-        label = topology.aggregates(edges, num_verts, levels)
-        while label.max(initial=0) + 1 > MAX_PATCHES:
-            levels += 1
-            coarser = topology.aggregates(edges, num_verts, levels)
-            if coarser.max() >= label.max():
-                break
-            label = coarser
-        _CACHE[key] = topology.smoothed_prolongation(edges, num_verts, label, smoothing)
-    return _CACHE[key]
+    """P (V, patches) of one garment (local vertex ids); `levels` is raised until the garment has
+    at most MAX_PATCHES patches (or coarsening stops gaining)."""
+    edges = topology.undirected_edges(faces)
+    label = topology.aggregates(edges, num_verts, levels)
+    while label.max(initial=0) + 1 > MAX_PATCHES:
+        levels += 1
+        coarser = topology.aggregates(edges, num_verts, levels)
+        if coarser.max() >= label.max():
+            break
+        label = coarser
+    return topology.smoothed_prolongation(edges, num_verts, label, smoothing)
 
 
 def _regularized_cholesky(block: Tensor) -> Tensor:
@@ -124,6 +115,50 @@ def _galerkin_operator(prolong: sp.csr_matrix, rows: np.ndarray, cols: np.ndarra
     return operator, blocks
 
 
+def _vertex_pairs(faces: np.ndarray, num_verts: int) -> tuple[np.ndarray, np.ndarray]:
+    """The vertex pairs (a, b) that share a face, as keys a · num_verts + b, ascending, and the
+    pair of each face's corner pair (F, 9), entry 3 i + j for corners i, j."""
+    key = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
+    pairs, where = np.unique(key, return_inverse=True)
+    return pairs, where.reshape(-1, 9)
+
+
+@dataclass(frozen=True)
+class _GarmentGalerkin:
+    """One garment topology's coarse space: P (V, patches), the number of its vertex pairs, its
+    Galerkin operator G (coarse blocks, pairs) and where each entry (a, b) of each coarse block
+    (I, J) goes in its dense coarse matrix, row-major: (3 I + a) · 3 patches + 3 J + b."""
+
+    prolong: sp.csr_matrix
+    num_pairs: int
+    operator: sp.csr_matrix
+    destination: np.ndarray
+
+
+#: Garment coarse spaces by topology, the most recently used kept (G of a 3k-vertex garment is
+#: about 4 MB: a training set's garments fit, a long run over more only rebuilds some).
+_GALERKIN: collections.OrderedDict[tuple, _GarmentGalerkin] = collections.OrderedDict()
+_GALERKIN_SIZE = 128
+
+
+def _garment_galerkin(faces: np.ndarray, num_verts: int, levels: int, smoothing: int) -> _GarmentGalerkin:
+    """The coarse space of one garment (local vertex ids), cached by topology."""
+    key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], num_verts, levels, smoothing)
+    if key not in _GALERKIN:
+        prolong = _garment_prolongation(faces, num_verts, levels, smoothing)
+        pairs, _ = _vertex_pairs(faces, num_verts)
+        operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
+        patches = prolong.shape[1]
+        row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
+        col = 3 * (blocks % patches)[:, None] + np.arange(3)
+        destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
+        _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), operator, destination)
+        while len(_GALERKIN) > _GALERKIN_SIZE:
+            _GALERKIN.popitem(last=False)
+    _GALERKIN.move_to_end(key)
+    return _GALERKIN[key]
+
+
 def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
     """A scipy CSR matrix as a float64 torch sparse CSR tensor on `device` (torch's CSR matrix
     product is its fastest sparse-dense one on the CPU and runs on CUDA)."""
@@ -136,11 +171,23 @@ def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
 
 
 @dataclass(frozen=True)
+class _Group:
+    """The garments of a batch that share one topology, formed together: G (sparse CSR), the
+    batch's pair rows of each garment (garments, pairs), and the buffer index of each entry of
+    each garment's coarse blocks (garments, coarse blocks · 9)."""
+
+    operator: Tensor
+    pair_rows: Tensor
+    destination: Tensor
+
+
+@dataclass(frozen=True)
 class _BatchStructure:
     """What a packed batch's coarse space keeps of its topology, on the cloth's device: P and Pᵀ
-    (sparse CSR, float64), where each face's corner-pair blocks of K go, the Galerkin operator G,
-    where each entry of G · K goes in the garments' dense coarse matrices (one flat buffer,
-    garment after garment), and each garment's coarse dofs and place in that buffer."""
+    (sparse CSR, float64), where each face's corner-pair blocks of K go, the Galerkin operator of
+    each distinct garment topology with where its products go in the garments' dense coarse
+    matrices (one flat buffer, garment after garment), and each garment's coarse dofs and place in
+    that buffer."""
 
     num_patches: int
     coarse_ranges: list[tuple[int, int]]  # coarse dofs [c0, c1) of each garment
@@ -149,52 +196,52 @@ class _BatchStructure:
     num_pairs: int
     pair_of_corner: Tensor
     pair_of_vertex: Tensor
-    galerkin: Tensor  # sparse CSR (coarse blocks, pairs), float64
-    destination: Tensor  # (coarse blocks · 9,) int64: buffer index of each block entry (a, b)
+    groups: list[_Group]
     prolong: Tensor  # P, sparse CSR (V, patches)
     restrict: Tensor  # Pᵀ, sparse CSR (patches, V)
 
     @staticmethod
     def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], levels: int,
               smoothing: int, device: torch.device) -> _BatchStructure:
-        parts, coarse_ranges, matrix_offsets, v0, f0, c0, offset = [], [], [], 0, 0, 0, 0
+        garments, coarse_ranges, matrix_offsets, pair_starts = [], [], [], []
+        v0, f0, c0, offset, p0 = 0, 0, 0, 0, 0
         for nv, nf in zip(vert_counts, face_counts):
             local = faces[f0:f0 + nf] - v0
             if nf and (local.min() < 0 or local.max() >= nv):
                 raise ValueError("CoarseSpace needs each garment's vertices and faces packed contiguously")
-            part = _garment_prolongation(np.ascontiguousarray(local), nv, levels, smoothing)
-            parts.append(part)
-            coarse_ranges.append((3 * c0, 3 * (c0 + part.shape[1])))
+            garment = _garment_galerkin(np.ascontiguousarray(local), nv, levels, smoothing)
+            garments.append(garment)
+            patches = garment.prolong.shape[1]
+            coarse_ranges.append((3 * c0, 3 * (c0 + patches)))
             matrix_offsets.append(offset)
-            c0, offset = c0 + part.shape[1], offset + (3 * part.shape[1]) ** 2
+            pair_starts.append(p0)  # a garment's pairs follow the previous garment's (keys ascend)
+            c0, offset, p0 = c0 + patches, offset + (3 * patches) ** 2, p0 + garment.num_pairs
             v0, f0 = v0 + nv, f0 + nf
-        prolong = sp.block_diag(parts, format="csr")  # (V, patches)
-        # K as 3×3 blocks of the vertex pairs that share a face: where each face-corner pair goes
         num_verts = sum(vert_counts)
-        key = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
-        pairs, where = np.unique(key, return_inverse=True)
-        operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
-        # block (I, J) of garment g, entry (a, b) → its dense matrix, row 3 (I − I₀) + a, column 3 (J − I₀) + b
-        patch_garment = np.repeat(np.arange(len(parts)), [p.shape[1] for p in parts])
-        first_patch = np.array([r[0] // 3 for r in coarse_ranges], dtype=np.int64)
-        size = np.array([r[1] - r[0] for r in coarse_ranges], dtype=np.int64)
-        big, small = blocks // prolong.shape[1], blocks % prolong.shape[1]
-        garment = patch_garment[big]
-        row = 3 * (big - first_patch[garment])[:, None] + np.arange(3)  # (blocks, 3)
-        col = 3 * (small - first_patch[garment])[:, None] + np.arange(3)
-        destination = (np.array(matrix_offsets, dtype=np.int64)[garment][:, None, None]
-                       + row[:, :, None] * size[garment][:, None, None] + col[:, None, :])
+        pairs, where = _vertex_pairs(faces, num_verts)
+        if len(pairs) != p0:
+            raise ValueError("CoarseSpace needs each garment's vertices and faces packed contiguously")
+        members: dict[int, list[int]] = {}
+        for g, garment in enumerate(garments):
+            members.setdefault(id(garment), []).append(g)
+        groups = []
+        for indices in members.values():
+            garment = garments[indices[0]]
+            rows = np.stack([np.arange(pair_starts[g], pair_starts[g] + garment.num_pairs) for g in indices])
+            destination = np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + garment.destination
+            groups.append(_Group(_sparse_csr(garment.operator, device), torch.from_numpy(rows).to(device),
+                                 torch.from_numpy(destination).to(device)))
+        prolong = sp.block_diag([g.prolong for g in garments], format="csr")  # (V, patches)
         return _BatchStructure(
             num_patches=prolong.shape[1],
             coarse_ranges=coarse_ranges,
             matrix_offsets=matrix_offsets,
             buffer_size=offset,
             num_pairs=len(pairs),
-            pair_of_corner=torch.from_numpy(where.astype(np.int32).reshape(-1, 9)).to(device),
+            pair_of_corner=torch.from_numpy(where.astype(np.int32)).to(device),
             pair_of_vertex=torch.from_numpy(
                 np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))).to(device),
-            galerkin=_sparse_csr(operator, device),
-            destination=torch.from_numpy(destination.reshape(-1)).to(device),
+            groups=groups,
             prolong=_sparse_csr(prolong, device),
             restrict=_sparse_csr(prolong.T.tocsr(), device),
         )
@@ -241,9 +288,13 @@ class CoarseSpace:
             blocks = pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
             if vertex_blocks is not None:
                 blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
-            coarse = s.galerkin @ blocks.reshape(-1, 9)  # (coarse blocks, 9): Pᵀ K P block by block
+            flat = blocks.reshape(-1, 9)
             dense = blocks.new_zeros(s.buffer_size)
-            dense[s.destination] = coarse.reshape(-1)
+            for group in s.groups:  # Pᵀ K P block by block: G times the pair blocks of the group's garments
+                count, pairs = group.pair_rows.shape
+                stacked = flat[group.pair_rows.reshape(-1)].reshape(count, pairs, 9).permute(1, 0, 2)
+                coarse = group.operator @ stacked.reshape(pairs, 9 * count)
+                dense[group.destination] = coarse.reshape(-1, count, 9).permute(1, 0, 2).reshape(count, -1)
         self._factors = [_regularized_cholesky(dense[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
                          for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
 
