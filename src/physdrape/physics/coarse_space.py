@@ -19,10 +19,11 @@ in the correction.
 
 Numerics: patches and P depend on a garment's topology only and are cached. K (in the cloth's
 dtype) is gathered into 3×3 blocks of the vertex pairs that share a face. Pᵀ K P is linear in
-those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so the
-topology fixes a sparse Galerkin operator G (coarse blocks × pairs) that is built once, and each
-`factor` forms Pᵀ K P as one sparse product G · K in float64, scattered straight into each
-garment's dense coarse matrix, which is then factorised (dense Cholesky). The correction is
+those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so a
+garment's topology fixes a sparse Galerkin operator G (coarse blocks × pairs), built once and
+cached, and each `factor` forms Pᵀ K P as one sparse product G · K in float64 for all the
+batch's garments of that topology, scattered straight into each garment's dense coarse matrix,
+which is then factorised (dense Cholesky). The correction is
 differentiable in r (P and the factor are constants).
 
 Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
