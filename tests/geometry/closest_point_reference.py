@@ -12,17 +12,8 @@ def _safe_div(num: Tensor, den: Tensor) -> Tensor:
 
 
 def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
-    """Exact closest point on triangles (Ericson, Real-Time Collision Detection, Sec. 5.1.5).
-
-    Args:
-        x: query points [m], shape (..., 3).
-        a, b, c: triangle corners [m], shape (..., 3) (broadcast against x).
-
-    Returns:
-        p: closest points [m], shape (..., 3), differentiable w.r.t. x, a, b, c.
-        bary: barycentric coordinates (wa, wb, wc) of p, shape (..., 3); a coordinate is exactly
-            zero when p lies on the opposite edge (two are zero at a vertex).
-    """
+    """`physdrape.geometry.closest_point.closest_point_on_triangle` in torch ops (same arguments
+    and results; Ericson's regions as `torch.where` selections)."""
     ab, ac, ap = b - a, c - a, x - a
     d1 = (ab * ap).sum(-1)
     d2 = (ac * ap).sum(-1)

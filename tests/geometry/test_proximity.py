@@ -248,17 +248,25 @@ def test_a_surface_told_of_its_workload_finds_its_doubtful_faces_first():
 
 
 def test_a_query_again_searches_only_the_points_that_moved(monkeypatch):
+    from physdrape.geometry.body_bvh import BodyBVH
+
     verts, faces = bumpy_blob()
     surface = BodySurface(verts, faces)
     x = sample_points(verts, faces, 300, 100, seed=6)
     first = surface.query(x)
     searched = []
-    search = BodySurface._search
-    monkeypatch.setattr(BodySurface, "_search", lambda self, p, b, **k: (searched.append(len(p)), search(self, p, b, **k))[1])
+    search = BodyBVH.closest_faces
+
+    def counting(self, points, body, **kwargs):
+        if not kwargs.get("reuse") and not kwargs.get("winding"):
+            searched.append(len(points))  # the closest-face searches that run
+        return search(self, points, body, **kwargs)
+
+    monkeypatch.setattr(BodyBVH, "closest_faces", counting)
     moved = x.clone()
     moved[:7] += 0.02
     again = surface.query(moved)
-    assert searched[0] == 7  # the closest-face search (winding numbers may follow for points in doubt)
+    assert searched == [7]
     fresh = BodySurface(verts, faces).query(moved)
     for field in ("closest", "normal", "signed_distance", "face", "bary", "inside"):
         assert torch.equal(getattr(again, field), getattr(fresh, field)), field
@@ -266,7 +274,11 @@ def test_a_query_again_searches_only_the_points_that_moved(monkeypatch):
     surface.update(verts * 1.01)  # the body moved: nothing is reused
     searched.clear()
     surface.query(x)
-    assert searched[0] == len(x)
+    assert searched == [len(x)]
+    surface.forget_recent()  # nor after being told to forget
+    searched.clear()
+    surface.query(x)
+    assert searched == [len(x)]
 
 
 def test_gradients_match_finite_differences():

@@ -15,6 +15,7 @@ write its inputs and read its outputs.
 
 from __future__ import annotations
 
+import collections
 import functools
 from concurrent.futures import ThreadPoolExecutor
 
@@ -28,6 +29,8 @@ __all__ = ["BodyBVH"]
 
 #: Below this many points per thread the search runs on one thread (launch overhead dominates).
 _MIN_POINTS_PER_THREAD = 1024
+#: Query sizes whose last points and closest faces a BVH keeps for reuse (`closest_faces`).
+_RECENT_QUERIES = 4
 
 
 @functools.cache
@@ -105,6 +108,7 @@ class BodyBVH:
             ]
             ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
             self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
+        self._recent: collections.OrderedDict[int, tuple[Tensor, Tensor, Tensor]] = collections.OrderedDict()
 
     def select(self, index: int) -> BodyBVH:
         """Body `index` alone, sharing this batch's BVH (no copy, no build). A refit of either moves
@@ -119,18 +123,42 @@ class BodyBVH:
         one._parent = self
         one._mesh_ids = wp.array(np.array([self._meshes[index].id], dtype=np.uint64), dtype=wp.uint64,
                                  device=self._wp_device)
+        one._recent = collections.OrderedDict()
         return one
 
     def refit(self, verts: Tensor) -> None:
         """Move the bodies to new vertex positions of the same shape (B, Vb, 3): refit, no rebuild."""
         self._points32.copy_(verts.detach())
+        self._recent.clear()
         with torch_stream(self._device):
             for mesh in self._meshes:
                 mesh.refit()
 
+    def forget_recent(self) -> None:
+        """Drop the searches kept for reuse: the next reusing search of each size searches every point."""
+        self._recent.clear()
+
+    def _reusing(self, points32: Tensor, body: Tensor, **search) -> Tensor:
+        """`closest_faces(..., reuse=True)`'s faces (see there)."""
+        last = self._recent.get(points32.shape[0])
+        if last is None:
+            face = self.closest_faces(points32, body, winding=False, **search)[0]
+        else:
+            old_points, old_body, face = last
+            moved = torch.nonzero((points32 != old_points).any(-1) | (body != old_body))[:, 0]
+            if moved.numel():
+                face = face.clone()
+                face[moved] = self.closest_faces(points32[moved].contiguous(), body[moved].contiguous(),
+                                                 winding=False, **search)[0]
+        self._recent[points32.shape[0]] = (points32.clone(), body.clone(), face)
+        self._recent.move_to_end(points32.shape[0])
+        while len(self._recent) > _RECENT_QUERIES:
+            self._recent.popitem(last=False)
+        return face.clone()
+
     def closest_faces(
         self, points32: Tensor, body: Tensor, *, winding_accuracy: float, threads: int | None = None,
-        winding: bool | None = None,
+        winding: bool | None = None, reuse: bool = False,
     ) -> tuple[Tensor, Tensor | None]:
         """Closest face (and winding-number inside flag) per point.
 
@@ -142,10 +170,19 @@ class BodyBVH:
                 from a thread pool, bit-for-bit the same result). None = `torch.get_num_threads()`.
             winding: also evaluate the winding number (needs `with_winding_number`); None = when
                 the BVHs were built with it.
+            reuse: search only the points that differ (bitwise, or in their body) from the same
+                row of the last reusing search of as many points, and keep the others' faces from
+                it (the search is deterministic: the same faces as a full search). For callers
+                that ask again about points most of which have not moved (the collision handler's
+                second pass, the metrics, the strain limiter's sweeps); not with `winding`.
 
         Returns:
             face: shape (M,) int64; inside: shape (M,) bool, or None without the winding number.
         """
+        if reuse:
+            if winding:
+                raise ValueError("closest_faces(reuse=True) keeps closest faces only, not winding numbers")
+            return self._reusing(points32, body, winding_accuracy=winding_accuracy, threads=threads), None
         wp, closest_kernel, closest_winding_kernel = _query_kernels()
         n = points32.shape[0]
         face = torch.empty(n, dtype=torch.int32, device=points32.device)

@@ -49,7 +49,6 @@ World frame and units follow DESIGN Sec. 1 (metres); no dtype is hard-coded.
 
 from __future__ import annotations
 
-import collections
 import enum
 import functools
 from dataclasses import dataclass
@@ -101,8 +100,6 @@ class SignMethod(str, enum.Enum):
 DOUBT_RADIUS_EDGES = 3.0
 #: A body vertex is buried when the point this far [m] out along its normal is inside the body.
 _PROBE_OFFSET = 1e-4
-#: Query sizes whose last points and closest faces a surface keeps (`BodySurface._closest_faces`).
-_RECENT_QUERIES = 4
 
 
 @functools.lru_cache(maxsize=8)
@@ -267,7 +264,6 @@ class BodySurface:
         one._face_normals = None if self._face_normals is None else tuple(n[index:index + 1] for n in self._face_normals)
         one._doubtful = None if self._doubtful is None else self._doubtful[index:index + 1]
         one._points_asked = self._points_asked
-        one._recent = collections.OrderedDict()
         one._bvh = self._bvh.select(index)
         one._selected_from = (self, index)
         return one
@@ -279,7 +275,6 @@ class BodySurface:
         self._face_normals = None
         self._doubtful = None
         self._points_asked = 0
-        self._recent: collections.OrderedDict[int, tuple[Tensor, Tensor, Tensor]] = collections.OrderedDict()
         self._selected_from: tuple[BodySurface, int] | None = None
         self._bvh = BodyBVH(verts, self.faces, with_winding_number=self.sign_method is SignMethod.WINDING_NUMBER)
 
@@ -300,7 +295,6 @@ class BodySurface:
         self._vertex_normals = None
         self._face_normals = None
         self._doubtful = None
-        self._recent.clear()
         self._bvh.refit(verts)
 
     @classmethod
@@ -314,28 +308,6 @@ class BodySurface:
         """Warp BVH search: closest face (and, with `winding`, the winding-number inside flag) per point."""
         return self._bvh.closest_faces(points32, body, winding_accuracy=self.winding_accuracy,
                                        threads=self.search_threads, winding=winding)
-
-    @torch.no_grad()
-    def _closest_faces(self, points32: Tensor, body: Tensor) -> Tensor:
-        """`_search`'s closest face per point, searching only the points that differ (bitwise, or
-        in their body) from the same row of the last query of as many points, whose faces are
-        kept: the collision handler and the metrics ask again about a garment whose points
-        mostly have not moved, and so do the strain limiter's sweeps. The same faces as a full
-        search (the search is deterministic)."""
-        last = self._recent.get(points32.shape[0])
-        if last is None:
-            face = self._search(points32, body)[0]
-        else:
-            old_points, old_body, face = last
-            moved = torch.nonzero((points32 != old_points).any(-1) | (body != old_body))[:, 0]
-            if moved.numel():
-                face = face.clone()
-                face[moved] = self._search(points32[moved].contiguous(), body[moved].contiguous())[0]
-        self._recent[points32.shape[0]] = (points32.clone(), body.clone(), face)
-        self._recent.move_to_end(points32.shape[0])
-        while len(self._recent) > _RECENT_QUERIES:
-            self._recent.popitem(last=False)
-        return face.clone()
 
     @torch.no_grad()
     def doubtful_faces(self) -> Tensor:
@@ -384,9 +356,9 @@ class BodySurface:
             self.doubtful_faces()
 
     def forget_recent(self) -> None:
-        """Drop the kept recent queries (`_closest_faces`): the next query of each size searches
-        every point."""
-        self._recent.clear()
+        """Drop the searches kept for reuse (`BodyBVH.closest_faces`): the next query of each
+        size searches every point."""
+        self._bvh.forget_recent()
 
     def _vertex_pseudo_normals(self) -> Tensor:
         """Angle-weighted vertex normals of all bodies, shape (B, Vb, 3); cached until update()."""
@@ -478,7 +450,8 @@ class BodySurface:
         with torch.no_grad():
             x32 = x.detach().to(torch.float32).contiguous()
             body32 = body.to(torch.int32).contiguous()
-            face = self._closest_faces(x32, body32)
+            face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
+                                           threads=self.search_threads, reuse=True)[0]
 
         p, bary = closest_point_on_indexed_triangles(x, self.verts.reshape(-1, 3), self._corner_rows(body, face))
         r = x - p
