@@ -220,8 +220,9 @@ class DrapePipeline:
         device = self.device
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         asked = QUERIES_PER_VERTEX * sum(job.template.num_verts for job in jobs)
-        for surface in {posed.surface(self.dtype, where) for where in (posed.state.verts.device, device)}:
-            surface.expect(asked)  # X_init's surface, and the model's where it lives elsewhere
+        places = {torch.device(device)} | ({posed.state.verts.device} if any(j.x_init is None for j in jobs) else set())
+        for surface in {posed.surface(self.dtype, where) for where in places}:
+            surface.expect(asked)  # the model's surface, and X_init's where it lives elsewhere
             surface.forget_recent()  # what a drape reuses is its own: a repeated drape costs what the first did
         x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body, job.rest))
                   .to(device=device, dtype=self.dtype) for job in jobs]

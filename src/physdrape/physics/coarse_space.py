@@ -126,12 +126,15 @@ def _vertex_pairs(faces: np.ndarray, num_verts: int) -> tuple[np.ndarray, np.nda
 
 @dataclass(frozen=True)
 class _GarmentGalerkin:
-    """One garment topology's coarse space: P (V, patches), the number of its vertex pairs, its
-    Galerkin operator G (coarse blocks, pairs) and where each entry (a, b) of each coarse block
+    """One garment topology's coarse space: P (V, patches), its vertex pairs (the pair of each
+    face's corner pair (F, 9) and of each vertex with itself (V,), numbered in ascending key order),
+    its Galerkin operator G (coarse blocks, pairs) and where each entry (a, b) of each coarse block
     (I, J) goes in its dense coarse matrix, row-major: (3 I + a) · 3 patches + 3 J + b."""
 
     prolong: sp.csr_matrix
     num_pairs: int
+    pair_of_corner: np.ndarray
+    pair_of_vertex: np.ndarray
     operator: sp.csr_matrix
     destination: np.ndarray
 
@@ -147,13 +150,15 @@ def _garment_galerkin(faces: np.ndarray, num_verts: int, levels: int, smoothing:
     key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], num_verts, levels, smoothing)
     if key not in _GALERKIN:
         prolong = _garment_prolongation(faces, num_verts, levels, smoothing)
-        pairs, _ = _vertex_pairs(faces, num_verts)
+        pairs, where = _vertex_pairs(faces, num_verts)
+        itself = np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))
         operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
         patches = prolong.shape[1]
         row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
         col = 3 * (blocks % patches)[:, None] + np.arange(3)
         destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
-        _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), operator, destination)
+        _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, operator,
+                                          destination)
         while len(_GALERKIN) > _GALERKIN_SIZE:
             _GALERKIN.popitem(last=False)
     _GALERKIN.move_to_end(key)
@@ -215,13 +220,9 @@ class _BatchStructure:
             patches = garment.prolong.shape[1]
             coarse_ranges.append((3 * c0, 3 * (c0 + patches)))
             matrix_offsets.append(offset)
-            pair_starts.append(p0)  # a garment's pairs follow the previous garment's (keys ascend)
+            pair_starts.append(p0)  # the batch numbers its pairs garment after garment
             c0, offset, p0 = c0 + patches, offset + (3 * patches) ** 2, p0 + garment.num_pairs
             v0, f0 = v0 + nv, f0 + nf
-        num_verts = sum(vert_counts)
-        pairs, where = _vertex_pairs(faces, num_verts)
-        if len(pairs) != p0:
-            raise ValueError("CoarseSpace needs each garment's vertices and faces packed contiguously")
         members: dict[int, list[int]] = {}
         for g, garment in enumerate(garments):
             members.setdefault(id(garment), []).append(g)
@@ -238,10 +239,11 @@ class _BatchStructure:
             coarse_ranges=coarse_ranges,
             matrix_offsets=matrix_offsets,
             buffer_size=offset,
-            num_pairs=len(pairs),
-            pair_of_corner=torch.from_numpy(where.astype(np.int32)).to(device),
-            pair_of_vertex=torch.from_numpy(
-                np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))).to(device),
+            num_pairs=p0,
+            pair_of_corner=torch.from_numpy(np.concatenate(
+                [g.pair_of_corner + start for g, start in zip(garments, pair_starts)]).astype(np.int32)).to(device),
+            pair_of_vertex=torch.from_numpy(np.concatenate(
+                [g.pair_of_vertex + start for g, start in zip(garments, pair_starts)])).to(device),
             groups=groups,
             prolong=_sparse_csr(prolong, device),
             restrict=_sparse_csr(prolong.T.tocsr(), device),
