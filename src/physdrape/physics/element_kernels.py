@@ -96,9 +96,50 @@ def _kernels() -> dict:
         wp.atomic_add(out, b, faces[f, 2], f2)
 
     @wp.func
+    def atan2_f64(y: wp.float64, x: wp.float64):
+        """atan2(y, x) within about an ulp, at half the cost of `wp.atan2` on the CPU (which calls
+        the C library's): the ratio of the smaller to the larger magnitude, t ∈ [0, 1], reduced
+        to |r| ≤ 0.66 by atan t = π/4 + atan((t − 1)/(t + 1)) above 0.66, then Cephes' rational
+        approximation atan r ≈ r + r z P(z)/Q(z), z = r², and the quadrant; π/4, π/2 and π carry
+        their rounding errors as second terms. atan2(0, 0) = 0."""
+        ay = wp.abs(y)
+        ax = wp.abs(x)
+        hi = wp.max(ay, ax)
+        a = f64(0.0)
+        if hi > f64(0.0):
+            t = wp.min(ay, ax) / hi
+            r = t
+            if t > f64(0.66):
+                r = (t - f64(1.0)) / (t + f64(1.0))
+            z = r * r
+            p = (((f64(-8.750608600031904122785e-1) * z - f64(1.615753718733365076637e1)) * z
+                  - f64(7.500855792314704667340e1)) * z - f64(1.228866684490136173410e2)) * z \
+                - f64(6.485021904942025371773e1)
+            q = ((((z + f64(2.485846490142306297962e1)) * z + f64(1.650270098316988542046e2)) * z
+                  + f64(4.328810604912902668951e2)) * z + f64(4.853903996359136964868e2)) * z \
+                + f64(1.945506571482613964425e2)
+            a = r + r * z * p / q
+            if t > f64(0.66):
+                a = f64(0.7853981633974483) + (a + f64(3.061616997868383e-17))
+            if ay > ax:
+                a = f64(1.5707963267948966) - (a - f64(6.123233995736766e-17))
+            if x < f64(0.0):
+                a = f64(3.141592653589793) - (a - f64(1.2246467991473532e-16))
+            if y < f64(0.0):
+                a = -a
+        return a
+
+    @wp.func_grad(atan2_f64)
+    def atan2_f64_grad(y: wp.float64, x: wp.float64, adj_ret: wp.float64):
+        """The exact derivatives (x, −y)/(x² + y²), not those of the approximation."""
+        scale = adj_ret / (x * x + y * y)
+        wp.adjoint[y] += scale * x
+        wp.adjoint[x] -= scale * y
+
+    @wp.func
     def hinge_angle(edge: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
         """Signed dihedral angle θ = atan2((n_a × n_b)·ê, n_a·n_b), zero when flat."""
-        return wp.atan2(wp.dot(wp.cross(n_a, n_b), edge) / wp.length(edge), wp.dot(n_a, n_b))
+        return atan2_f64(wp.dot(wp.cross(n_a, n_b), edge) / wp.length(edge), wp.dot(n_a, n_b))
 
     @wp.func
     def angle_gradients(edge: wp.vec3d, d2: wp.vec3d, d3: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
@@ -152,7 +193,7 @@ def _kernels() -> dict:
         wp.atomic_add(out, b, hinges[h, 2], scale * g2)
         wp.atomic_add(out, b, hinges[h, 3], scale * g3)
 
-    return {"wp": wp, "deformation_columns": deformation_columns, "green_strain": green_strain, "stress": stress,
+    return {"wp": wp, "atan2": atan2_f64, "deformation_columns": deformation_columns, "green_strain": green_strain, "stress": stress,
             "angle_gradients": angle_gradients, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
             "hinge_angle": hinge_angle_kernel, "bend_energy": bend_energy_kernel, "bend_force": bend_force_kernel}
 
