@@ -39,6 +39,7 @@ from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
 from physdrape.physics.layers import LayerOrder
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
+from physdrape.threads import thread_pool
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
 #: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
@@ -224,8 +225,9 @@ class DrapePipeline:
         for surface in {posed.surface(self.dtype, where) for where in places}:
             surface.expect(asked)  # the model's surface, and X_init's where it lives elsewhere
             surface.forget_recent()  # what a drape reuses is its own: a repeated drape costs what the first did
-        x_init = [(job.x_init if job.x_init is not None else self.x_init(job.template, posed, job.body, job.rest))
-                  .to(device=device, dtype=self.dtype) for job in jobs]
+        skinned = self._x_inits(jobs, posed)
+        x_init = [(skinned[i] if job.x_init is None else job.x_init).to(device=device, dtype=self.dtype)
+                  for i, job in enumerate(jobs)]
         batch = GarmentBatch.pack([self.garment(job.template, job.rest) for job in jobs])
         cloth = Cloth.build(batch, [job.material for job in jobs])
         bodies = posed.surface(self.dtype, device)
@@ -241,6 +243,34 @@ class DrapePipeline:
         if layers is not None:
             cloth = replace(cloth, layers=layers)
         return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
+
+    def _x_inits(self, jobs: Sequence[Job], posed: PosedBodies) -> dict[int, Tensor]:
+        """X_init of every job that brings no start of its own, by job index. On the CPU with
+        more than one torch thread, the jobs of different bodies are skinned and limited in
+        parallel (bit-identical: each job's work is its own; the jobs of one body share that
+        body's surface and its kept searches, so they run in turn); the first job runs alone
+        first, so that what is built on first use (transfers, kernels, surfaces) is built once."""
+        todo = [i for i, job in enumerate(jobs) if job.x_init is None]
+
+        def run(indices: list[int]) -> dict[int, Tensor]:
+            return {i: self.x_init(jobs[i].template, posed, jobs[i].body, jobs[i].rest) for i in indices}
+
+        if not todo:
+            return {}
+        out = run(todo[:1])
+        by_body: dict[int, list[int]] = {}
+        for i in todo[1:]:
+            by_body.setdefault(jobs[i].body, []).append(i)
+        workers = min(torch.get_num_threads(), len(by_body))
+        if workers < 2 or posed.state.verts.device.type != "cpu":
+            out.update(run(todo[1:]))
+            return out
+        for i in todo[1:]:  # first use outside the threads: fitted transfers, selected surfaces
+            self.transfer(jobs[i].template)
+            posed.single(jobs[i].body, self.dtype)
+        for part in thread_pool("x-init", workers).map(run, by_body.values()):
+            out.update(part)
+        return out
 
     def grip_band(self, template: Template) -> np.ndarray:
         """The template's gripping vertices, its waistband's strip (`garments.pieces.waistband_band`),

@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import collections
 import functools
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from physdrape.threads import thread_pool
 from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["BodyBVH"]
@@ -31,12 +31,6 @@ __all__ = ["BodyBVH"]
 _MIN_POINTS_PER_THREAD = 1024
 #: Query sizes whose last points and closest faces a BVH keeps for reuse (`closest_faces`).
 _RECENT_QUERIES = 4
-
-
-@functools.cache
-def _search_pool(workers: int) -> ThreadPoolExecutor:
-    """A shared thread pool for chunked BVH searches (Warp releases the GIL inside a kernel)."""
-    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="physdrape-bvh")
 
 
 @functools.cache
@@ -208,7 +202,7 @@ class BodyBVH:
         chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
         if chunks > 1:
             bounds = np.linspace(0, n, chunks + 1).astype(int)
-            pool = _search_pool(chunks)
+            pool = thread_pool("bvh", chunks)  # Warp releases the GIL inside a kernel
             for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
                 job.result()
         elif n:

@@ -109,6 +109,17 @@ def limit_edge_stretch(
     w_stats = wp.from_torch(stats, dtype=wp.float64)
     held, previous = False, None
     with torch_stream(x.device):
+        # the sweeps' launches, recorded once (their arrays stay the same): a recorded launch
+        # replays without packing its arguments again, which costs more than a small kernel's
+        # work on the CPU and holds the GIL that parallel X_inits share
+        edge = wp.launch(edge_kernel, dim=ends.shape[0], device=device, record_cmd=True,
+                         inputs=[w["x"], w_ends, w_bound, w["shift"], w_count, w_stats])
+        depth = wp.launch(depth_kernel, dim=flat.shape[0], device=device, record_cmd=True,
+                          inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_stats])
+        vertex = [wp.launch(vertex_kernel, dim=flat.shape[0], device=device, record_cmd=True,
+                            inputs=[w["x"], w["shift"], w_count, w["velocity"], float(relaxation), float(momentum),
+                                    w["closest"], w["normal"], w["floor"], planes_held, w["next"]])
+                  for planes_held in (0, 1)]
         for sweep in range(iterations):
             if body is not None and sweep % requery_every == 0:
                 with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
@@ -119,20 +130,16 @@ def limit_edge_stretch(
                     planes[2, :, 0] = query.signed_distance.reshape(-1).to(torch.float64).clamp_max(margin)
                 held = True
             stats.zero_()
-            wp.launch(edge_kernel, dim=ends.shape[0], device=device,
-                      inputs=[w["x"], w_ends, w_bound, w["shift"], w_count, w_stats])
+            edge.launch()
             if held:
-                wp.launch(depth_kernel, dim=flat.shape[0], device=device,
-                          inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_stats])
+                depth.launch()
             total, over, under = stats.tolist()
             if not under and not over:
                 break
             if previous is not None and total > previous:
                 buffers[2].zero_()  # adaptive restart: the momentum overshot
             previous = total
-            wp.launch(vertex_kernel, dim=flat.shape[0], device=device,
-                      inputs=[w["x"], w["shift"], w_count, w["velocity"], float(relaxation), float(momentum),
-                              w["closest"], w["normal"], w["floor"], int(held), w["next"]])
+            vertex[int(held)].launch()
             flat.copy_(buffers[0])
     out = flat.reshape(shape).to(x.dtype)
     # gradients pass straight through: the limiter's corrections count as a fixed displacement
