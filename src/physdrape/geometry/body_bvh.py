@@ -95,11 +95,14 @@ class BodyBVH:
         self._indices32 = faces.to(device=verts.device, dtype=torch.int32).reshape(-1).contiguous()
         with torch_stream(self._device):
             wp_indices = wp.from_torch(self._indices32, dtype=wp.int32)
-            self._meshes = [
-                wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
-                        support_winding_number=with_winding_number)
-                for b in range(verts.shape[0])
-            ]
+
+            def build(b: int):
+                return wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
+                               support_winding_number=with_winding_number)
+
+            workers = min(torch.get_num_threads(), verts.shape[0]) if self._wp_device.is_cpu else 1
+            bodies = range(verts.shape[0])  # on the CPU, the bodies' BVHs are built on parallel threads
+            self._meshes = list(thread_pool("bvh", workers).map(build, bodies) if workers > 1 else map(build, bodies))
             ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
             self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
         self._recent: collections.OrderedDict[int, tuple[Tensor, Tensor, Tensor]] = collections.OrderedDict()

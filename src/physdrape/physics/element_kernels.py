@@ -29,6 +29,7 @@ import weakref
 import torch
 from torch import Tensor
 
+from physdrape.threads import disjoint_parts, even_parts, run_parts
 from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "strain_energy_per_face", "strain_force"]
@@ -220,11 +221,16 @@ class _ElementKernel(torch.autograd.Function):
     def forward(ctx, x: Tensor, name: str, num_elements: int, constants: tuple, out_shape: tuple) -> Tensor:
         wp = _kernels()["wp"]
         out = torch.zeros(out_shape, dtype=torch.float64, device=x.device)
+        per_vertex = len(out_shape) == 3
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(_kernels()[name], dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
+                      inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants)],
+                      outputs=[_to_warp(wp, out if per_vertex else out[:, lo:hi], len(out_shape) - 2)])
+
         if num_elements and x.shape[0]:
             with torch_stream(x.device):
-                wp.launch(_kernels()[name], dim=(x.shape[0], num_elements), device=wp.device_from_torch(x.device),
-                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t, d) for t, d in constants)],
-                          outputs=[_to_warp(wp, out, len(out_shape) - 2)])
+                run_parts(launch, _parts(x, constants[0][0], sums_into_vertices=per_vertex), "elements")
         ctx.save_for_backward(x)
         ctx.launch = (name, num_elements, constants, out_shape)
         return out
@@ -243,13 +249,30 @@ class _ElementKernel(torch.autograd.Function):
             grad_out = grad_out.to(torch.float64).contiguous()
             # the constants' adjoints are written to scratch arrays nobody reads
             scratch = [(torch.zeros_like(t) if t.is_floating_point() else t, d) for t, d in constants]
-            with torch_stream(x.device):
-                wp.launch(_kernels()[name], dim=(x.shape[0], num_elements), device=wp.device_from_torch(x.device),
-                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t, d) for t, d in constants)],
-                          outputs=[_to_warp(wp, out, len(out_shape) - 2)],
-                          adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t, d) for t, d in scratch)],
-                          adj_outputs=[_to_warp(wp, grad_out, len(out_shape) - 2)], adjoint=True)
+            per_vertex = len(out_shape) == 3
+
+            def launch(lo: int, hi: int) -> None:
+                rows = slice(None) if per_vertex else slice(lo, hi)
+                wp.launch(_kernels()[name], dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
+                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants)],
+                          outputs=[_to_warp(wp, out[:, rows], len(out_shape) - 2)],
+                          adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in scratch)],
+                          adj_outputs=[_to_warp(wp, grad_out[:, rows], len(out_shape) - 2)], adjoint=True)
+
+            with torch_stream(x.device):  # the adjoint sums into the vertices whatever the output
+                run_parts(launch, _parts(x, constants[0][0], sums_into_vertices=True), "elements")
         return grad_x, None, None, None, None
+
+
+def _parts(x: Tensor, elements: Tensor, *, sums_into_vertices: bool) -> list[tuple[int, int]]:
+    """The element ranges a launch over `elements` (N, k) runs in: on the CPU with several torch
+    threads and one leading batch row, split between threads (`physdrape.threads`): anywhere for
+    per-element outputs, between disjoint vertex sets (the garments of a packed batch) where the
+    kernel sums into vertices; else one range."""
+    threads = torch.get_num_threads() if x.device.type == "cpu" and x.shape[0] == 1 else 1
+    if sums_into_vertices:
+        return disjoint_parts(elements, threads)
+    return even_parts(elements.shape[0], threads)
 
 
 #: Kernel-typed copies of the cloth's coefficients (float64 / int32), by the id of the tensor they
@@ -258,7 +281,7 @@ _CONSTANTS: collections.OrderedDict[int, tuple[weakref.ref, int, Tensor]] = coll
 _CONSTANTS_SIZE = 256
 
 
-def _kernel_constant(t: Tensor) -> Tensor:
+def kernel_constant(t: Tensor) -> Tensor:
     """t as float64 (floating) or int32 (integer), contiguous: t itself when it is already, else a
     copy made once per tensor and reused while that tensor lives unmodified (its weak reference
     and version counter are checked, so a recycled id or an in-place change makes a new copy)."""
@@ -285,7 +308,7 @@ def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int],
     num_verts = x.shape[-2]
     batch = math.prod(lead)
     x64 = x.reshape(batch, num_verts, 3).to(torch.float64).contiguous()
-    packed = tuple(_kernel_constant(t) for t in constants)
+    packed = tuple(kernel_constant(t) for t in constants)
     out_shape = (batch, num_verts, 3) if per_vertex else (batch, num_elements)
     out = _ElementKernel.apply(x64, name, num_elements, tuple(zip(packed, element_dims)), out_shape)
     return out.reshape(*lead, *out_shape[1:]).to(x.dtype)

@@ -34,6 +34,7 @@ from torch import Tensor
 
 from physdrape.physics import element_kernels
 from physdrape.physics.cloth import Cloth
+from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["pair_blocks", "vertex_blocks"]
@@ -134,15 +135,31 @@ def _kernels():
     return wp, strain_vertex_kernel, strain_pair_kernel, bend_vertex_kernel
 
 
-def _strain_inputs(wp, x: Tensor, cloth: Cloth) -> list:
-    """The strain kernels' leading arguments: positions, faces, Dm⁻¹, V, μ, λ (float64 / int32)."""
-    f64 = torch.float64
-    return [wp.from_torch(x.detach().to(f64).contiguous(), dtype=wp.vec3d),
-            wp.from_torch(cloth.faces.to(torch.int32).contiguous(), dtype=wp.int32),
-            wp.from_torch(cloth.rest_inv.to(f64).contiguous(), dtype=wp.mat22d),
-            wp.from_torch(cloth.volume.to(f64).contiguous(), dtype=wp.float64),
-            wp.from_torch(cloth.mu.to(f64).contiguous(), dtype=wp.float64),
-            wp.from_torch(cloth.lam.to(f64).contiguous(), dtype=wp.float64)]
+def _launch(kernel, x: Tensor, elements: Tensor, per_element: list[tuple[Tensor, str]], out: Tensor) -> None:
+    """kernel over the rows of `elements` (N, k) int32: inputs x (V, 3) as vec3d, then each
+    per-element tensor (rows ↔ elements) as its Warp type, output `out` (rows: vertices or vertex
+    pairs, mat33d). On the CPU with several torch threads, the rows are split between threads where
+    they touch disjoint vertices (the garments of a packed batch, `physdrape.threads`)."""
+    wp = warp()
+    device = wp.device_from_torch(x.device)
+    target = wp.from_torch(out, dtype=wp.mat33d)
+    x64 = wp.from_torch(x, dtype=wp.vec3d)
+
+    def launch(lo: int, hi: int) -> None:
+        wp.launch(kernel, dim=hi - lo, device=device, outputs=[target],
+                  inputs=[x64, *(wp.from_torch(t[lo:hi], dtype=getattr(wp, kind)) for t, kind in per_element)])
+
+    threads = torch.get_num_threads() if x.device.type == "cpu" else 1
+    with torch_stream(x.device):
+        run_parts(launch, disjoint_parts(elements, threads), "elements")
+
+
+def _strain_constants(cloth: Cloth) -> list[tuple[Tensor, str]]:
+    """The strain kernels' per-face arguments after x: faces, Dm⁻¹, V, μ, λ (int32 / float64,
+    the element kernels' cached copies)."""
+    constant = element_kernels.kernel_constant
+    return [(constant(cloth.faces), "int32"), (constant(cloth.rest_inv), "mat22d"), (constant(cloth.volume), "float64"),
+            (constant(cloth.mu), "float64"), (constant(cloth.lam), "float64")]
 
 
 @torch.no_grad()
@@ -153,18 +170,16 @@ def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
     diagonal blocks of `physics.hessians.strain_hessian` wherever every face's stress S is PSD;
     the bending part is Gauss–Newton.
     """
-    wp, strain_vertex, _, bend_vertex = _kernels()
+    _, strain_vertex, _, bend_vertex = _kernels()
     out = torch.zeros(cloth.num_verts, 3, 3, dtype=torch.float64, device=x.device)
-    device = wp.device_from_torch(x.device)
-    with torch_stream(x.device):
-        strain = _strain_inputs(wp, x, cloth)
-        target = wp.from_torch(out, dtype=wp.mat33d)
-        if cloth.faces.shape[0]:
-            wp.launch(strain_vertex, dim=cloth.faces.shape[0], inputs=strain, outputs=[target], device=device)
-        if cloth.hinges.shape[0]:
-            wp.launch(bend_vertex, dim=cloth.hinges.shape[0], device=device, outputs=[target],
-                      inputs=[strain[0], wp.from_torch(cloth.hinges.to(torch.int32).contiguous(), dtype=wp.int32),
-                              wp.from_torch(cloth.bend_stiffness.to(torch.float64).contiguous(), dtype=wp.float64)])
+    x64 = x.detach().to(torch.float64).contiguous()
+    if cloth.faces.shape[0]:
+        strain = _strain_constants(cloth)
+        _launch(strain_vertex, x64, strain[0][0], strain, out)
+    if cloth.hinges.shape[0]:
+        hinges = element_kernels.kernel_constant(cloth.hinges)
+        _launch(bend_vertex, x64, hinges, [(hinges, "int32"),
+                                           (element_kernels.kernel_constant(cloth.bend_stiffness), "float64")], out)
     return out.to(x.dtype)
 
 
@@ -176,14 +191,13 @@ def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int)
     f's block (a, b) is added to (rows of vertex a, columns of vertex b), entry 3a + b. With
     ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3).
     """
-    wp, _, strain_pair, _ = _kernels()
+    _, _, strain_pair, _ = _kernels()
     out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=x.device)
     if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
         raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
                          f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
-    with torch_stream(x.device):
-        if cloth.faces.shape[0]:
-            wp.launch(strain_pair, dim=cloth.faces.shape[0], device=wp.device_from_torch(x.device),
-                      inputs=[*_strain_inputs(wp, x, cloth), wp.from_torch(pair_of_corner.contiguous(), dtype=wp.int32)],
-                      outputs=[wp.from_torch(out, dtype=wp.mat33d)])
+    if cloth.faces.shape[0]:  # a face's pairs are pairs of its garment: the garments' pairs are disjoint too
+        strain = _strain_constants(cloth)
+        _launch(strain_pair, x.detach().to(torch.float64).contiguous(), strain[0][0],
+                [*strain, (pair_of_corner.contiguous(), "int32")], out)
     return out
