@@ -39,7 +39,7 @@ from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
 from physdrape.physics.layers import LayerOrder
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
-from physdrape.threads import thread_pool
+from physdrape.threads import parallel_map
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
 #: (the API's `Draper` and the evaluation share it, so `physdrape eval` measures what users run).
@@ -268,7 +268,7 @@ class DrapePipeline:
         for i in todo[1:]:  # first use outside the threads: fitted transfers, selected surfaces
             self.transfer(jobs[i].template)
             posed.single(jobs[i].body, self.dtype)
-        for part in thread_pool("x-init", workers).map(run, by_body.values()):
+        for part in parallel_map(run, list(by_body.values()), "x-init", workers):
             out.update(part)
         return out
 

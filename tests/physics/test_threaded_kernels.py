@@ -1,6 +1,5 @@
 """The element and majorant kernels split between threads (`physdrape.threads`): on a packed
-batch of garments the parts touch disjoint vertices and give what one thread gives, bit for bit;
-one garment is not split where its kernel sums into vertices."""
+batch of garments the parts touch disjoint vertices and give what one thread gives, bit for bit."""
 
 from __future__ import annotations
 
@@ -13,7 +12,6 @@ from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.physics import Cloth, Material
 from physdrape.physics.majorant import pair_blocks, vertex_blocks
-from physdrape.threads import MIN_ELEMENTS_PER_PART, disjoint_parts, even_parts
 
 
 @pytest.fixture
@@ -26,21 +24,6 @@ def threads():
 def _sheets(count: int) -> GarmentBatch:
     return GarmentBatch.pack([Garment.from_mesh(*grid_sheet(40, 30 + k, width=0.6, height=0.5), name=f"sheet{k}")
                               for k in range(count)])
-
-
-def test_parts_split_between_garments_only():
-    batch = _sheets(3)
-    faces = batch.faces
-    starts = [0, *torch.cumsum(torch.bincount(batch.face_garment), 0).tolist()]
-    parts = disjoint_parts(faces, 3)
-    assert len(parts) == 3 and parts[0][0] == 0 and parts[-1][1] == faces.shape[0]
-    assert all(lo in starts for lo, _ in parts)
-    used = [set(faces[lo:hi].reshape(-1).tolist()) for lo, hi in parts]
-    assert not (used[0] & used[1]) and not (used[1] & used[2])
-    one = Garment.from_mesh(*grid_sheet(60, 60, width=0.6, height=0.5)).faces
-    assert one.shape[0] >= 2 * MIN_ELEMENTS_PER_PART and disjoint_parts(one, 2) == [(0, one.shape[0])]
-    assert even_parts(one.shape[0], 2) == [(0, one.shape[0] // 2), (one.shape[0] // 2, one.shape[0])]
-    assert disjoint_parts(faces[:100], 4) == [(0, 100)]
 
 
 def test_two_threads_give_one_threads_values_and_gradients(threads):
@@ -60,3 +43,4 @@ def test_two_threads_give_one_threads_values_and_gradients(threads):
                                                                             9 * cloth.faces.shape[0])]
     for one, two in zip(out[1], out[2]):
         assert torch.equal(one.detach(), two.detach())
+

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import collections
 import functools
+import itertools
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from physdrape.threads import thread_pool
+from physdrape.threads import parallel_map, run_parts
 from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["BodyBVH"]
@@ -100,9 +101,11 @@ class BodyBVH:
                 return wp.Mesh(points=wp.from_torch(self._points32[b], dtype=wp.vec3), indices=wp_indices,
                                support_winding_number=with_winding_number)
 
-            workers = min(torch.get_num_threads(), verts.shape[0]) if self._wp_device.is_cpu else 1
-            bodies = range(verts.shape[0])  # on the CPU, the bodies' BVHs are built on parallel threads
-            self._meshes = list(thread_pool("bvh", workers).map(build, bodies) if workers > 1 else map(build, bodies))
+            bodies = list(range(verts.shape[0]))
+            if self._wp_device.is_cpu and torch.get_num_threads() > 1:  # the bodies' BVHs on parallel threads
+                self._meshes = parallel_map(build, bodies, "bvh", torch.get_num_threads())
+            else:
+                self._meshes = [build(b) for b in bodies]
             ids = np.array([m.id for m in self._meshes], dtype=np.uint64)
             self._mesh_ids = wp.array(ids, dtype=wp.uint64, device=self._wp_device)
         self._recent: collections.OrderedDict[int, tuple[Tensor, Tensor, Tensor]] = collections.OrderedDict()
@@ -204,10 +207,8 @@ class BodyBVH:
         threads = threads or torch.get_num_threads()
         chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
         if chunks > 1:
-            bounds = np.linspace(0, n, chunks + 1).astype(int)
-            pool = thread_pool("bvh", chunks)  # Warp releases the GIL inside a kernel
-            for job in [pool.submit(launch, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
-                job.result()
+            bounds = np.linspace(0, n, chunks + 1).astype(int).tolist()
+            run_parts(launch, list(itertools.pairwise(bounds)), "bvh")  # Warp releases the GIL inside a kernel
         elif n:
             with torch_stream(self._device):
                 launch(0, n)

@@ -5,7 +5,9 @@ Every solver step evaluates these energies two or three times (the line search) 
 once. Written as chains of small torch ops (gathers, stacks, crosses, index_add), each of a few
 thousand elements, they cost more in per-op overhead than in arithmetic. Here each is one kernel
 launch with one thread per face or hinge, summing the forces into the vertices atomically, on the
-CPU (compiled native code) or on CUDA, wherever the tensors live.
+CPU (compiled native code) or on CUDA, wherever the tensors live. On a CPU with several torch
+threads a launch is split into parts run on parallel threads (`physdrape.threads`): a packed
+batch's garments, whose vertices are disjoint, and any range of a per-element output.
 
 Differentiation: each kernel is wrapped in a `torch.autograd.Function` whose backward is the
 kernel's adjoint, which Warp generates from the same source. So the energies' gradient is the
