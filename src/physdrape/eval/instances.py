@@ -31,7 +31,7 @@ from physdrape.garments.generator import GarmentCategory
 from physdrape.garments.split import DEFAULT_SIZES, read_manifest
 from physdrape.model import DrapeInput
 from physdrape.physics import Material
-from physdrape.pipeline import POSE_DTYPE, DrapePipeline, Job, Template
+from physdrape.pipeline import POSE_DTYPE, DrapePipeline, Job, PosedBodies, Template
 from physdrape.train.data import DataConfig, default_split_dir, load_templates
 
 __all__ = ["Instance", "InstanceInput", "body_seed", "garment_category", "layout", "makehuman_instances",
@@ -62,8 +62,9 @@ def garment_category(name: str) -> str | None:
 
 class InstanceInput(NamedTuple):
     """One built instance. drape: the model's input (X_init included); init_s: wall seconds of
-    computing that X_init (skinning + contact-aware strain limiting; the transfer weights are
-    fitted once per garment, outside the timing); skinned: where the classical references (the
+    building it, as `Draper.drape`'s init phase (the body surface and what the drape's queries
+    need of it, X_init: skinning + contact-aware strain limiting, the packed batch; the transfer
+    weights are fitted once per garment, outside the timing); skinned: where the classical references (the
     oracle, the VBD bench) start: the garment skinned with only the local strain limit of the
     skinning artefacts (`LOCAL_STRETCH_BOUND`), i.e. without the global pull-back that is part of
     PhysDrape's own pipeline and timed as such; None = start from X_init."""
@@ -107,13 +108,13 @@ class Instance:
 def instance_batch(pipeline: DrapePipeline, pool: BodyPool, template: Template, body: int) -> InstanceInput:
     """`template` on pool body `body`, default material, built by the drape pipeline exactly as
     `Draper.drape` builds it (see `InstanceInput`)."""
-    state = pool.state(body)
+    posed = PosedBodies(pool.state(body))
+    pipeline.transfer(template)  # fitted once per garment, outside the timing
     t0 = time.perf_counter()
-    x_init = pipeline.x_init(template, state)
+    drape = pipeline.build([Job(template, 0, Material())], posed)
     init_s = time.perf_counter() - t0
     with torch.no_grad():
-        skinned = replace(pipeline.transfer(template), max_stretch=LOCAL_STRETCH_BOUND).apply(state)[0]
-    drape = pipeline.build([Job(template, 0, Material(), x_init)], state)
+        skinned = replace(pipeline.transfer(template), max_stretch=LOCAL_STRETCH_BOUND).apply(posed.state)[0]
     return InstanceInput(drape, init_s, skinned.to(pipeline.dtype))
 
 
