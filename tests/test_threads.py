@@ -11,7 +11,6 @@ from physdrape.geometry.primitives import grid_sheet
 from physdrape.threads import (
     MIN_ELEMENTS_PER_PART,
     disjoint_parts,
-    even_parts,
     parallel_map,
 )
 
@@ -32,7 +31,6 @@ def test_parts_split_between_garments_only():
     assert not (used[0] & used[1]) and not (used[1] & used[2])
     one = Garment.from_mesh(*grid_sheet(60, 60, width=0.6, height=0.5)).faces
     assert one.shape[0] >= 2 * MIN_ELEMENTS_PER_PART and disjoint_parts(one, 2) == [(0, one.shape[0])]
-    assert even_parts(one.shape[0], 2) == [(0, one.shape[0] // 2), (one.shape[0] // 2, one.shape[0])]
     assert disjoint_parts(faces[:100], 4) == [(0, 100)]
 
 

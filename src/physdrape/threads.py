@@ -2,10 +2,10 @@
 pools, one per purpose and size, made on first use; `parallel_map`, in which the calling thread
 works along; and the split of an element kernel's launch into parts that touch disjoint vertices.
 
-On the machines PhysDrape is measured on, a kernel's part of a few milliseconds runs about 1.3×
-faster on two threads than on one (memory-bound work sharing the cores' caches), a compute-bound
-one 1.8×; `parallel_map` keeps the calling thread busy so that a pool thread that wakes late
-does not cost its part.
+A memory-bound kernel (the element kernels) gains less from a second thread than a compute-bound
+one, and a part of a fraction of a millisecond can take less time than waking a pool thread:
+`parallel_map` keeps the calling thread busy, so that a pool thread that wakes late does not cost
+its part, and one garment's launches are not split at all.
 """
 
 from __future__ import annotations
@@ -75,14 +75,6 @@ def disjoint_parts(elements: Tensor, parts: int) -> list[tuple[int, int]]:
         if nearest - bounds[-1] >= MIN_ELEMENTS_PER_PART and n - nearest >= MIN_ELEMENTS_PER_PART:
             bounds.append(nearest)
     bounds = sorted(set(bounds)) + [n]
-    return list(itertools.pairwise(bounds))
-
-
-def even_parts(n: int, parts: int) -> list[tuple[int, int]]:
-    """Up to `parts` ranges of nearly equal length covering [0, n), each at least
-    `MIN_ELEMENTS_PER_PART` long (for kernels whose elements write nothing they share)."""
-    parts = max(1, min(parts, n // MIN_ELEMENTS_PER_PART))
-    bounds = [n * j // parts for j in range(parts + 1)]
     return list(itertools.pairwise(bounds))
 
 

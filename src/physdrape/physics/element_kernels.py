@@ -6,8 +6,8 @@ once. Written as chains of small torch ops (gathers, stacks, crosses, index_add)
 thousand elements, they cost more in per-op overhead than in arithmetic. Here each is one kernel
 launch with one thread per face or hinge, summing the forces into the vertices atomically, on the
 CPU (compiled native code) or on CUDA, wherever the tensors live. On a CPU with several torch
-threads a launch is split into parts run on parallel threads (`physdrape.threads`): a packed
-batch's garments, whose vertices are disjoint, and any range of a per-element output.
+threads a packed batch's launch is split between its garments, whose vertices are disjoint, and
+the parts run on parallel threads (`physdrape.threads`).
 
 Differentiation: each kernel is wrapped in a `torch.autograd.Function` whose backward is the
 kernel's adjoint, which Warp generates from the same source. So the energies' gradient is the
@@ -31,7 +31,7 @@ import weakref
 import torch
 from torch import Tensor
 
-from physdrape.threads import disjoint_parts, even_parts, run_parts
+from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import torch_stream, warp
 
 __all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "strain_energy_per_face", "strain_force"]
@@ -232,7 +232,7 @@ class _ElementKernel(torch.autograd.Function):
 
         if num_elements and x.shape[0]:
             with torch_stream(x.device):
-                run_parts(launch, _parts(x, constants[0][0], sums_into_vertices=per_vertex), "elements")
+                run_parts(launch, _parts(x, constants[0][0]), "elements")
         ctx.save_for_backward(x)
         ctx.launch = (name, num_elements, constants, out_shape)
         return out
@@ -261,20 +261,19 @@ class _ElementKernel(torch.autograd.Function):
                           adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in scratch)],
                           adj_outputs=[_to_warp(wp, grad_out[:, rows], len(out_shape) - 2)], adjoint=True)
 
-            with torch_stream(x.device):  # the adjoint sums into the vertices whatever the output
-                run_parts(launch, _parts(x, constants[0][0], sums_into_vertices=True), "elements")
+            with torch_stream(x.device):
+                run_parts(launch, _parts(x, constants[0][0]), "elements")
         return grad_x, None, None, None, None
 
 
-def _parts(x: Tensor, elements: Tensor, *, sums_into_vertices: bool) -> list[tuple[int, int]]:
+def _parts(x: Tensor, elements: Tensor) -> list[tuple[int, int]]:
     """The element ranges a launch over `elements` (N, k) runs in: on the CPU with several torch
-    threads and one leading batch row, split between threads (`physdrape.threads`): anywhere for
-    per-element outputs, between disjoint vertex sets (the garments of a packed batch) where the
-    kernel sums into vertices; else one range."""
+    threads and one leading batch row, the garments of a packed batch, split between threads
+    (their vertices are disjoint, so every kernel's sums into vertices stay those of one launch;
+    `physdrape.threads`); else one range. One garment is not split: its kernels' parts, a fraction
+    of a millisecond, gain less from a second thread than handing them over costs."""
     threads = torch.get_num_threads() if x.device.type == "cpu" and x.shape[0] == 1 else 1
-    if sums_into_vertices:
-        return disjoint_parts(elements, threads)
-    return even_parts(elements.shape[0], threads)
+    return disjoint_parts(elements, threads)
 
 
 #: Kernel-typed copies of the cloth's coefficients (float64 / int32), by the id of the tensor they
