@@ -1,8 +1,8 @@
 """Scaling of a drape: cost per garment against garment size, and garments per second against batch size and threads.
 
-Everything runs through the public API (`physdrape.api.Draper.drape`), each configuration in a
-fresh subprocess of this script (`--worker`), so that thread settings do not leak and its peak
-memory (`resource.getrusage(RUSAGE_SELF).ru_maxrss`) is its own:
+Everything runs through the public API (`physdrape.api.Draper.drape`), each size and each batch
+size in a fresh subprocess of this script (`--worker`), so that its peak memory
+(`resource.getrusage(RUSAGE_SELF).ru_maxrss`) is its own:
 
 - **sizes**: the bundled T-shirt (`assets/garments/tshirt_default.ply`, 3k vertices) remeshed
   (`physdrape.garments.remesh`, isotropic, boundary loops kept) to about `--sizes` vertices
@@ -17,8 +17,10 @@ memory (`resource.getrusage(RUSAGE_SELF).ru_maxrss`) is its own:
   the metrics of the result (`metrics_s`). The remeshed garments are cached in `--cache-dir`.
 - **batches**: the bundled T-shirt on n = `--batches` (default 1, 8, 32) poses at once
   (`Draper.drape(garment, pose=[...n poses], batch_size=n)`), on each of `--threads` (default 1
-  and 2): garments per second and ms per garment (median of `--repeats` calls after a warm-up),
-  and the ratio of 2 threads over 1. `--batch-poses fresh` (the default) drapes n new poses each
+  and 2), the thread counts alternating call by call in one process per batch size (the
+  machine's drift over a run, which on a shared machine exceeds the effect of a second thread,
+  then weighs on each count alike): garments per second and ms per garment (median of
+  `--repeats` calls per count after a warm-up round), and the ratio of 2 threads over 1. `--batch-poses fresh` (the default) drapes n new poses each
   call (drawn beforehand with the API's `random:SEED` sampler and passed as arrays, so the
   posing, arm check and body surfaces are paid as a dataset pays them); `same` repeats one set of n
   poses (posed bodies kept).
@@ -205,8 +207,52 @@ def worker(spec: dict) -> dict:
             "median": medians, "calls": timed, "peak_rss_gib": _rss_gib(), "setup_peak_rss_gib": rss_setup}
 
 
-def run_worker(spec: dict, timeout: float) -> dict:
-    """`worker(spec)` in a fresh process of this script; its result (or an "error")."""
+def batch_worker(spec: dict) -> list[dict]:
+    """Drape a batch of `spec["batch"]` garments on each torch thread count of `spec["threads"]`,
+    the counts alternating call by call in one process (rounds of one call per count, the order
+    reversed every other round), so that the machine's drift over a run weighs on each alike:
+    one row per count, `spec["repeats"]` timed rounds after a warm-up round."""
+    import torch
+
+    from physdrape.api import Draper
+
+    counts, n, repeats = spec["threads"], spec["batch"], spec["repeats"]
+    t0 = time.perf_counter()
+    draper = Draper(steps=spec["steps"])
+    template = draper.garment(spec["garment"])
+    draper.body("anny")
+    timer = PhaseTimer(draper.model)
+    calls = 1 if spec["poses"] == "same" else (repeats + 1) * len(counts)
+    drawn = [[draper.poses(f"random:{spec['pose_seed'] + c * n + i}")[0].pose[0].numpy() for i in range(n)]
+             for c in range(calls)]
+    setup_s = time.perf_counter() - t0
+    records: dict[int, list[dict]] = {t: [] for t in counts}
+    call = 0
+    for round_ in range(repeats + 1):  # round 0: the warm-up (transfer fit, kernels, caches)
+        for threads in counts if round_ % 2 == 0 else counts[::-1]:
+            torch.set_num_threads(threads)
+            t = time.perf_counter()
+            results = draper.drape(template, pose=drawn[call % len(drawn)], batch_size=n)
+            wall = time.perf_counter() - t
+            call += 1
+            if len(results) != n:
+                raise RuntimeError(f"{len(results)} results for a batch of {n}")
+            record = {"wall_s": wall, **{k: v for k, v in results[0].timings.items() if k.endswith("_s")},
+                      **timer.phases(), "b2g_percent": float(np.mean([r.metrics["b2g_percent"] for r in results]))}
+            if round_:
+                records[threads].append(record)
+    rows = []
+    for threads, timed in records.items():
+        medians = {key: statistics.median(r[key] for r in timed) for key in timed[0]}
+        rows.append({**spec, "threads": threads, "torch_threads": threads, "num_verts": template.num_verts,
+                     "num_faces": len(template.faces), "setup_s": setup_s, "median": medians, "calls": timed,
+                     "peak_rss_gib": _rss_gib()})
+    return rows
+
+
+def run_worker(spec: dict, timeout: float) -> dict | list[dict]:
+    """`worker(spec)` (`batch_worker` for a batch spec) in a fresh process of this script; its
+    result (or an "error")."""
     cmd = [sys.executable, str(HERE), "--worker", json.dumps(spec)]
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
@@ -281,8 +327,9 @@ def write_markdown(path: Path, header: dict, args, sizes: list[dict], batches: l
              f"Command: `{header['command']}`  ",
              (f"Commit {header['git_commit']}{' (dirty tree)' if header['git_dirty'] else ''}; {header['date_utc']}; "
              f"{header['cpu_count']} CPUs; load average {load} (1/5/15 min) at the start, {load_end} at the end. "
-             f"Each configuration in its own process (torch threads as in its row), `Draper.drape` at T = "
-             f"{args.steps}, medians of timed calls after a warm-up call."), "",
+             f"Each size in its own process, each batch size in its own process with its thread counts "
+             f"alternating call by call (side by side); `Draper.drape` at T = {args.steps}, medians of timed "
+             f"calls after a warm-up call."), "",
              f"## Cost per garment against size ({args.size_threads} torch thread(s), batch 1, the same posed body)",
              "", ("The bundled T-shirt remeshed to each target; ms / garment is the wall time of `Draper.drape`; "
              "the phases are its `DrapeResult.timings` (body, X_init, metrics) and the model's modules "
@@ -291,7 +338,8 @@ def write_markdown(path: Path, header: dict, args, sizes: list[dict], batches: l
              (f"## Throughput against batch size and threads (the bundled T-shirt on n poses, "
              f"{args.batch_poses} poses every call)"), "",
              ("garments / s = n / (wall time of one `Draper.drape` call of n garments, batch_size = n); the "
-             "phases per garment are `DrapeResult.timings` over n."), "", *batch_table(batches), ""]
+             "phases per garment are `DrapeResult.timings` over n; the peak RSS is that of the batch size's "
+             "process, over all its thread counts."), "", *batch_table(batches), ""]
     path.write_text("\n".join(lines))
 
 
@@ -318,7 +366,8 @@ def main(argv=None) -> int:
     parser.add_argument("--worker", help=argparse.SUPPRESS)  # internal: one configuration, JSON
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(json.loads(args.worker))))
+        spec = json.loads(args.worker)
+        print(json.dumps(batch_worker(spec) if spec["kind"] == "batch" else worker(spec)))
         return 0
     if args.quick:
         args.sizes, args.batches, args.repeats = [1000, 4000], [1, 4], 1
@@ -337,14 +386,15 @@ def main(argv=None) -> int:
         log(f"  {json.dumps({k: sizes[-1].get(k) for k in ('num_verts', 'median', 'peak_rss_gib', 'error')})}")
     batches = []
     for n in args.batches:
-        for threads in args.threads:
-            spec = {"kind": "batch", "garment": str(DEFAULT_GARMENT), "batch": n, "threads": threads,
-                    "steps": args.steps, "repeats": args.repeats, "poses": args.batch_poses,
-                    "pose_seed": args.pose_seed}
-            log(f"batch {n}, {threads} thread(s)")
-            batches.append(run_worker(spec, args.timeout))
-            r = batches[-1]
-            log(f"  error: {r['error']}" if "error" in r else f"  {n / r['median']['wall_s']:.2f} garments/s")
+        spec = {"kind": "batch", "garment": str(DEFAULT_GARMENT), "batch": n, "threads": args.threads,
+                "steps": args.steps, "repeats": args.repeats, "poses": args.batch_poses, "pose_seed": args.pose_seed}
+        log(f"batch {n}, {args.threads} thread(s) alternating")
+        rows = run_worker(spec, args.timeout)
+        rows = [{**spec, "threads": t, "error": rows["error"]} for t in args.threads] if "error" in rows else rows
+        batches += rows
+        for r in rows:
+            log(f"  error: {r['error']}" if "error" in r else
+                f"  {r['threads']} thread(s): {n / r['median']['wall_s']:.2f} garments/s")
     header["load_average_end"] = list(os.getloadavg())
     header["total_wall_s"] = time.perf_counter() - t_start
 
