@@ -10,17 +10,17 @@ its part, and one garment's launches are not split at all.
 
 from __future__ import annotations
 
-import collections
 import functools
 import itertools
 import threading
-import weakref
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 import torch
 from torch import Tensor
+
+from physdrape.tensor_memo import TensorMemo
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -37,9 +37,9 @@ def thread_pool(purpose: str, workers: int) -> ThreadPoolExecutor:
 #: Below this many elements per part a launch is not split (the threads' overhead would dominate).
 MIN_ELEMENTS_PER_PART = 2048
 
-#: Split points of element tables already seen, by the id of the table: a solver launches over
-#: the same faces and hinges dozens of times per drape.
-_SPLITS: collections.OrderedDict[int, tuple[weakref.ref, int, Tensor]] = collections.OrderedDict()
+#: Split points of element tables already seen: a solver launches over the same faces and hinges
+#: dozens of times per drape.
+_SPLITS = TensorMemo(64)
 
 
 def disjoint_parts(elements: Tensor, parts: int) -> list[tuple[int, int]]:
@@ -56,16 +56,7 @@ def disjoint_parts(elements: Tensor, parts: int) -> list[tuple[int, int]]:
     parts = min(parts, n // MIN_ELEMENTS_PER_PART)
     if parts < 2:
         return [(0, n)]
-    hit = _SPLITS.get(id(elements))
-    if hit is not None and hit[0]() is elements and hit[1] == elements._version:
-        splits = hit[2]
-    else:  # row s starts a new range where all rows before it use lower vertices than all from it
-        lowest = elements.min(dim=1).values.flip(0).cummin(0).values.flip(0)
-        highest = elements.max(dim=1).values.cummax(0).values
-        splits = (torch.nonzero(highest[:-1] < lowest[1:])[:, 0] + 1).cpu()
-        _SPLITS[id(elements)] = (weakref.ref(elements), elements._version, splits)
-        while len(_SPLITS) > 64:
-            _SPLITS.popitem(last=False)
+    splits = _SPLITS.get(elements, _split_points)
     bounds = [0]
     for j in range(1, parts):
         if not splits.numel():
@@ -76,6 +67,14 @@ def disjoint_parts(elements: Tensor, parts: int) -> list[tuple[int, int]]:
             bounds.append(nearest)
     bounds = sorted(set(bounds)) + [n]
     return list(itertools.pairwise(bounds))
+
+
+def _split_points(elements: Tensor) -> Tensor:
+    """The rows s of `elements` (N, k) before which every row uses lower vertices than every row
+    from s on (CPU int64)."""
+    lowest = elements.min(dim=1).values.flip(0).cummin(0).values.flip(0)
+    highest = elements.max(dim=1).values.cummax(0).values
+    return (torch.nonzero(highest[:-1] < lowest[1:])[:, 0] + 1).cpu()
 
 
 def parallel_map(fn: Callable[[T], R], items: Sequence[T], purpose: str, workers: int | None = None) -> list[R]:

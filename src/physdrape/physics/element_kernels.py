@@ -23,14 +23,13 @@ may carry leading batch dimensions, x (..., V, 3); the kernels launch over (batc
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects, and
 # a function that names `wp` only in its annotations cannot resolve them from a string.
-import collections
 import functools
 import math
-import weakref
 
 import torch
 from torch import Tensor
 
+from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import torch_stream, warp
 
@@ -276,28 +275,18 @@ def _parts(x: Tensor, elements: Tensor) -> list[tuple[int, int]]:
     return disjoint_parts(elements, threads)
 
 
-#: Kernel-typed copies of the cloth's coefficients (float64 / int32), by the id of the tensor they
-#: were made from: a solver evaluates the same cloth dozens of times per drape.
-_CONSTANTS: collections.OrderedDict[int, tuple[weakref.ref, int, Tensor]] = collections.OrderedDict()
-_CONSTANTS_SIZE = 256
+#: Kernel-typed copies of the cloth's coefficients (float64 / int32), per tensor they were made
+#: from: a solver evaluates the same cloth dozens of times per drape.
+_CONSTANTS = TensorMemo(256)
 
 
 def kernel_constant(t: Tensor) -> Tensor:
     """t as float64 (floating) or int32 (integer), contiguous: t itself when it is already, else a
-    copy made once per tensor and reused while that tensor lives unmodified (its weak reference
-    and version counter are checked, so a recycled id or an in-place change makes a new copy)."""
+    copy made once per tensor and reused while that tensor lives unmodified (`TensorMemo`)."""
     target = torch.float64 if t.is_floating_point() else torch.int32
     if t.dtype == target and t.is_contiguous():
         return t
-    hit = _CONSTANTS.get(id(t))
-    if hit is not None and hit[0]() is t and hit[1] == t._version:
-        return hit[2]
-    out = t.to(target).contiguous()
-    _CONSTANTS[id(t)] = (weakref.ref(t), t._version, out)
-    _CONSTANTS.move_to_end(id(t))
-    while len(_CONSTANTS) > _CONSTANTS_SIZE:
-        _CONSTANTS.popitem(last=False)
-    return out
+    return _CONSTANTS.get(t, lambda u: u.to(target).contiguous())
 
 
 def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int], num_elements: int,
