@@ -13,14 +13,14 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth
 from physdrape.physics.contact import (
     contact_energy,
-    contact_forces,
-    contact_gradient,
     contact_hessian_blocks,
     contact_samples,
-    contact_vertex_blocks,
     contact_vertices,
     garment_energy,
     penalty_contact_energy,
+    plane_contact_blocks,
+    plane_contact_forces,
+    plane_distance,
     query_samples,
     sample_index,
     to_vertices,
@@ -68,9 +68,43 @@ def test_force_is_negative_autograd_gradient_on_held_planes(body):
     xg = x.clone().requires_grad_()
     (grad,) = torch.autograd.grad(_plane_energy(xg, garment.faces, closest, normal), xg)
     assert grad.abs().max() > 1e-6, "test point is stationary: the comparison would prove nothing"
-    f = contact_forces(distance, normal, garment.faces, stiffness=K_C, margin=EPS)
+    f = plane_contact_forces(x, garment.faces, closest, normal, stiffness=K_C, margin=EPS)
     torch.testing.assert_close(f, -grad, rtol=1e-10, atol=1e-14)
-    torch.testing.assert_close(contact_gradient(distance, normal, garment.faces, stiffness=K_C, margin=EPS), -f)
+    # the kernel's distances are the planes' (s − p)·n, which the query gave at x
+    torch.testing.assert_close(plane_distance(x, garment.faces, closest, normal), distance, rtol=0, atol=1e-15)
+
+
+def test_force_backward_is_the_hessian_vector_product_on_held_planes(body):
+    garment, x = _band(seed=2)
+    closest, normal, _ = _planes(body, x, garment.faces)
+    direction = torch.randn(x.shape, generator=torch.Generator().manual_seed(5), dtype=x.dtype)
+    xg = x.clone().requires_grad_()
+    f = plane_contact_forces(xg, garment.faces, closest, normal, stiffness=K_C, margin=EPS)
+    (hv,) = torch.autograd.grad(f, xg, grad_outputs=direction)
+    exact = torch.autograd.functional.hvp(lambda xt: _plane_energy(xt, garment.faces, closest, normal), x, direction)[1]
+    assert exact.abs().max() > 1e-3
+    torch.testing.assert_close(hv, -exact, rtol=1e-10, atol=1e-12 * float(exact.abs().max()))
+
+
+def test_float32_positions_get_the_float64_contact_in_float32():
+    garment, x = _band(seed=6)
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
+    body32 = BodySurface(torch.tensor(np.asarray(sphere.vertices), dtype=torch.float32),
+                         torch.tensor(np.asarray(sphere.faces)))
+    closest, normal, _ = _planes(body32, x.float(), garment.faces)
+    x32 = x.float()
+    f64 = plane_contact_forces(x32.double(), garment.faces, closest.double(), normal.double(), stiffness=K_C,
+                               margin=EPS)
+    f32 = plane_contact_forces(x32, garment.faces, closest, normal, stiffness=K_C, margin=EPS)
+    assert f32.dtype == torch.float32 and f64.abs().max() > 1e-3
+    assert torch.equal(f32, f64.float())  # float64 arithmetic, rounded once
+
+
+def test_plane_functions_check_the_planes_shape(body):
+    garment, x = _band()
+    closest, normal, _ = _planes(body, x, garment.faces)
+    with pytest.raises(ValueError, match="the V \\+ F samples"):
+        plane_distance(x, garment.faces, closest[:-1], normal)
 
 
 def test_force_matches_central_differences_of_the_queried_energy(body):
@@ -79,7 +113,7 @@ def test_force_matches_central_differences_of_the_queried_energy(body):
     cloth = Cloth.build(garment)
     vert_body = torch.zeros(garment.num_verts, dtype=torch.int64)
     q = query_samples(x, garment.faces, body, vert_body)
-    f = contact_forces(q.signed_distance, q.normal, garment.faces, stiffness=K_C, margin=EPS)
+    f = plane_contact_forces(x, garment.faces, q.closest, q.normal, stiffness=K_C, margin=EPS)
 
     def energy(xt):
         return float(penalty_contact_energy(xt, cloth, body, vert_body, stiffness=K_C, margin=EPS).sum())
@@ -115,8 +149,24 @@ def test_gauss_newton_blocks_are_the_hessian_on_held_planes(body):
     torch.testing.assert_close(assembled, exact, rtol=1e-10, atol=1e-10 * float(exact.abs().max()))
     # the per-vertex blocks are the diagonal blocks of that Hessian
     diagonal = exact.reshape(num_verts, 3, num_verts, 3)[idx, :, idx, :]
-    torch.testing.assert_close(contact_vertex_blocks(distance, normal, faces, stiffness=K_C, margin=EPS), diagonal,
+    torch.testing.assert_close(plane_contact_blocks(x, faces, closest, normal, stiffness=K_C, margin=EPS), diagonal,
                                rtol=1e-10, atol=1e-10 * float(exact.abs().max()))
+
+
+def test_blocks_within_the_band_are_taken_at_depth_at_least_the_margin(body):
+    garment, x = _band(seed=3)
+    faces, num_verts = garment.faces, garment.num_verts
+    closest, normal, distance = _planes(body, x, faces)
+    band = 0.01
+    assert ((distance > EPS) & (distance < band)).sum() > 5, "no sample between margin and band: proves nothing"
+    # the same blocks as the exact ones at the distances the band substitutes
+    depth_distance = torch.where(distance < band, distance.clamp_max(0.0), distance)
+    vertex, face = contact_hessian_blocks(depth_distance, normal, faces, stiffness=K_C, margin=EPS)
+    expected = vertex.index_add(0, faces.reshape(-1), face.reshape(-1, 3, 3, 3, 3).diagonal(dim1=1, dim2=3)
+                                .permute(0, 3, 1, 2).reshape(-1, 3, 3))
+    got = plane_contact_blocks(x, faces, closest, normal, stiffness=K_C, margin=EPS, band=band)
+    torch.testing.assert_close(got, expected, rtol=1e-10, atol=1e-12 * float(expected.abs().max()))
+    assert got.shape == (num_verts, 3, 3)
 
 
 def test_second_derivative_along_the_normal_matches_finite_differences(body):
@@ -137,7 +187,7 @@ def test_second_derivative_along_the_normal_matches_finite_differences(body):
         return float(_plane_energy(x + t * n, faces, closest, normal))
 
     fd = (e(h) - 2 * e(0.0) + e(-h)) / h**2
-    block = contact_vertex_blocks(distance, normal, faces, stiffness=K_C, margin=EPS)[i]
+    block = plane_contact_blocks(x, faces, closest, normal, stiffness=K_C, margin=EPS)[i]
     assert float(normal[i] @ block @ normal[i]) == pytest.approx(fd, rel=1e-4)
     own = float(normal[i] @ vertex[i] @ normal[i])
     assert own == pytest.approx(6 * K_C * float(depth[i]), rel=1e-12)

@@ -15,10 +15,10 @@ from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
     contact_energy,
-    contact_forces,
-    contact_samples,
-    contact_vertex_blocks,
     garment_energy,
+    plane_contact_blocks,
+    plane_contact_forces,
+    plane_distance,
     query_samples,
 )
 from physdrape.physics.forces import extra_blocks, internal_energy, internal_forces
@@ -155,8 +155,8 @@ class StretchingSolver(nn.Module):
             if bodies is not None and t % self.requery_every == 0:
                 problem.requery(x, bodies, body_index)
                 phi = None
-            force, distance = problem.force(x)
-            contact = problem.contact_blocks(distance)
+            force = problem.force(x)
+            contact = problem.contact_blocks(x)
             if t % self.refactor_every == 0:
                 coarse.factor(x, contact)
             z = _precondition(self._stiffness_inverse(x.detach(), cloth, contact), coarse, force)
@@ -196,7 +196,7 @@ class StretchingSolver(nn.Module):
         problem = self._relaxation(cloth, None)
         if bodies is not None:
             problem.requery(x, bodies, body_index)
-        contact = problem.contact_blocks(problem.distance(x))
+        contact = problem.contact_blocks(x)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         coarse.factor(x, contact)
         return partial(_precondition, self._stiffness_inverse(x, cloth, contact), coarse)
@@ -289,13 +289,14 @@ class _Relaxation:
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None) -> None:
         with torch.no_grad():
             q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
-        self.planes = (q.closest.to(x.dtype), q.normal.to(x.dtype))
+        # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
+        self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
 
     def distance(self, x: Tensor) -> Tensor | None:
         """d per sample (vertices, then centroids) above its held plane [m], or None without planes."""
         if self.planes is None:
             return None
-        return ((contact_samples(x, self.cloth.faces) - self.planes[0]) * self.planes[1]).sum(-1)
+        return plane_distance(x, self.cloth.faces, *self.planes)
 
     def potential(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J]."""
@@ -308,27 +309,23 @@ class _Relaxation:
             phi = phi - self.cloth.sum_per_garment((self.f_hat * x).sum(-1), self.cloth.vert_garment)
         return phi
 
-    def force(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
-        """(−∇Φ (V, 3) [N], each sample's distance d to its plane or None)."""
+    def force(self, x: Tensor) -> Tensor:
+        """−∇Φ (V, 3) [N]."""
         force = internal_forces(x, self.cloth)
-        distance = self.distance(x)
-        if distance is not None:
-            force = force + contact_forces(distance, self.planes[1], self.cloth.faces, stiffness=self.stiffness,
-                                           margin=self.margin)
+        if self.planes is not None:
+            force = force + plane_contact_forces(x, self.cloth.faces, *self.planes, stiffness=self.stiffness,
+                                                 margin=self.margin)
         if self.f_hat is not None:
             force = force + self.f_hat
-        return force, distance
+        return force
 
-    def contact_blocks(self, distance: Tensor | None) -> Tensor | None:
-        """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) from the samples'
-        distances d, samples within `band` of their plane taken at depth ≥ ε, plus the grip's and
-        the stitches' (`physics.forces.extra_blocks`); or None without any."""
+    def contact_blocks(self, x: Tensor) -> Tensor | None:
+        """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) at x on the held planes,
+        samples within `band` of their plane taken at depth ≥ ε, plus the grip's and the stitches'
+        (`physics.forces.extra_blocks`); or None without any."""
         extra = extra_blocks(self.cloth)
-        if distance is None:
+        if self.planes is None:
             return extra
-        distance = distance.detach()
-        if self.band > 0:  # depth ReLU(ε − min(d, 0)) = max(ReLU(ε − d), ε) within the band
-            distance = torch.where(distance < self.band, distance.clamp_max(0.0), distance)
-        blocks = contact_vertex_blocks(distance, self.planes[1], self.cloth.faces, stiffness=self.stiffness,
-                                       margin=self.margin)
+        blocks = plane_contact_blocks(x, self.cloth.faces, *self.planes, stiffness=self.stiffness, margin=self.margin,
+                                      band=self.band)
         return blocks if extra is None else blocks + extra.to(blocks.dtype)

@@ -2,7 +2,7 @@
 
 from physdrape.physics.bending import bend_energy, bend_forces, dihedral_angle
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.contact import contact_energy, contact_forces, penalty_contact_energy
+from physdrape.physics.contact import contact_energy, penalty_contact_energy, plane_contact_forces
 from physdrape.physics.forces import energy_terms, internal_energy, internal_forces
 from physdrape.physics.gravity import gravity_energy, gravity_forces
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
@@ -17,7 +17,6 @@ __all__ = [
     "bend_energy",
     "bend_forces",
     "contact_energy",
-    "contact_forces",
     "dihedral_angle",
     "energy_terms",
     "gravity_energy",
@@ -25,6 +24,7 @@ __all__ = [
     "internal_energy",
     "internal_forces",
     "penalty_contact_energy",
+    "plane_contact_forces",
     "relax",
     "strain_energy",
     "strain_forces",

@@ -12,7 +12,10 @@ either from a body query, or from a closest-point plane held fixed (d = (s − p
 Gauss–Newton blocks 6 k_c ReLU(ε − d) n nᵀ are the exact Hessian.
 
 Every user (the training loss, the stretching solver, the physics oracle, the evaluation's
-total energy) calls these functions with its own stiffness k_c [J/m³] and margin ε [m].
+total energy) calls these functions with its own stiffness k_c [J/m³] and margin ε [m]. The
+distances, forces and blocks on planes (`plane_distance`, `plane_contact_forces`,
+`plane_contact_blocks`) are Warp kernels (`physics.contact_kernels`): the solver evaluates them
+several times per step.
 """
 
 from __future__ import annotations
@@ -21,6 +24,10 @@ from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
+
+from physdrape.physics import contact_kernels
+from physdrape.physics.element_kernels import run_kernel
+from physdrape.tensor_memo import TensorMemo
 
 if TYPE_CHECKING:
     from physdrape.geometry.proximity import BodySurface, SurfaceQuery
@@ -82,24 +89,59 @@ def to_vertices(per_sample: Tensor, faces: Tensor) -> Tensor:
     return per_sample[:num_verts].index_add(0, faces.reshape(-1), corner)
 
 
-def contact_gradient(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float, margin: float) -> Tensor:
-    """∇_x E_c onto the vertices [N], (V, 3): −3 k_c ReLU(ε − d)² n per vertex sample, and a
-    centroid's −3 k_c ReLU(ε − d)² n shared equally by its corners.
-
-    distance: d of every sample (V + F,) [m]; normal: unit outward body normal n at each sample's
-    closest point (V + F, 3); faces: (F, 3). Differentiable in distance (and normal).
-    """
-    num_verts = distance.shape[0] - faces.shape[0]
-    depth = contact_depth(distance, margin=margin)
-    dv, dc = depth[:num_verts], depth[num_verts:]
-    grad = -(3.0 * stiffness * dv**2)[:, None] * normal[:num_verts]
-    corner = -(stiffness * dc**2)[:, None] * normal[num_verts:]  # 3 k d² n / 3 per corner
-    return grad.index_add(0, faces.reshape(-1), corner.repeat_interleave(3, dim=0))
+def sample_corners(faces: Tensor, num_verts: int) -> Tensor:
+    """The contact samples' corner table (V + F, 3) int32 on faces' device: a vertex sample's
+    vertex three times, then each face's corners (`physics.contact_kernels`); made once per faces
+    tensor and reused while it lives unmodified."""
+    table = _CORNERS.get(faces, lambda f: _corner_table(f, num_verts))
+    return table if table.shape[0] == num_verts + faces.shape[0] else _corner_table(faces, num_verts)
 
 
-def contact_forces(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float, margin: float) -> Tensor:
-    """f = −∇_x E_c onto the vertices [N], (V, 3); arguments as `contact_gradient`."""
-    return -contact_gradient(distance, normal, faces, stiffness=stiffness, margin=margin)
+def _corner_table(faces: Tensor, num_verts: int) -> Tensor:
+    verts = torch.arange(num_verts, dtype=torch.int32, device=faces.device)[:, None].expand(-1, 3)
+    return torch.cat([verts, faces.to(torch.int32)]).contiguous()
+
+
+#: Corner tables per faces tensor: a solver evaluates the contact of one cloth dozens of times.
+_CORNERS = TensorMemo(64)
+
+
+def plane_distance(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor) -> Tensor:
+    """d = (s − p)·n [m] of every sample s of positions x (V, 3) [m] on its held plane: closest
+    point p and unit normal n per sample (V + F, 3). Differentiable once in x; (V + F,) in x's dtype."""
+    return _launch("distance", x, faces, closest, normal, None)
+
+
+def plane_contact_forces(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, *, stiffness: float,
+                         margin: float) -> Tensor:
+    """f = −∇_x E_c onto the vertices [N], (V, 3), with every sample's distance taken on its held
+    plane (closest point p and unit normal n per sample, (V + F, 3)): 3 k_c ReLU(ε − d)² n per
+    vertex sample, and a centroid's 3 k_c ReLU(ε − d)² n shared equally by its corners. With planes
+    from a body query at x this is −∇ of the queried energy (∇d = n there). Differentiable once
+    in x (the backward is the Gauss–Newton Hessian–vector product on the held planes)."""
+    return _launch("force", x, faces, closest, normal, (3,), float(stiffness), float(margin))
+
+
+def plane_contact_blocks(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, *, stiffness: float,
+                         margin: float, band: float = 0.0) -> Tensor:
+    """The 3 × 3 diagonal blocks (V, 3, 3) [N/m] of E_c's Gauss–Newton Hessian on held planes: a
+    vertex's own 6 k_c ReLU(ε − d) n nᵀ plus 1/9 of each of its faces' centroid blocks (the exact
+    Hessian's diagonal blocks on the planes). Samples closer to their plane than `band` [m] are
+    taken at depth ReLU(ε − min(d, 0)) ≥ ε instead (a preconditioner's choice, see
+    `model.stretching_solver`). Not differentiated."""
+    with torch.no_grad():
+        return _launch("blocks", x.detach(), faces, closest, normal, (3, 3), float(stiffness), float(margin),
+                       float(band))
+
+
+def _launch(name: str, x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, out_dims: tuple | None,
+            *scalars: float) -> Tensor:
+    num_verts, num_samples = x.shape[-2], x.shape[-2] + faces.shape[0]
+    if closest.shape != (num_samples, 3) or normal.shape != (num_samples, 3):
+        raise ValueError(f"closest and normal must have shape ({num_samples}, 3) (the V + F samples), got "
+                         f"{tuple(closest.shape)} and {tuple(normal.shape)}")
+    return run_kernel(contact_kernels.kernels()[name], x, [sample_corners(faces, num_verts), closest, normal],
+                      [0, 1, 1], num_samples, out_dims, scalars)
 
 
 def contact_hessian_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float,
@@ -107,7 +149,10 @@ def contact_hessian_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, s
     """Gauss–Newton blocks of E_c (closest points held fixed): per vertex (V, 3, 3)
     6 k_c ReLU(ε − d) n nᵀ from its own sample, and per face (F, 9, 9) the centroid's
     6 k_c ReLU(ε − d) n nᵀ / 9 in each of its 3 × 3 corner pairs. Their assembled sum is the
-    Hessian in x of E_c on fixed planes. Arguments as `contact_gradient`.
+    Hessian in x of E_c on fixed planes.
+
+    distance: d of every sample (V + F,) [m]; normal: unit outward body normal n at each sample's
+    closest point (V + F, 3); faces: (F, 3).
     """
     num_verts = distance.shape[0] - faces.shape[0]
     depth = contact_depth(distance, margin=margin)
@@ -116,22 +161,6 @@ def contact_hessian_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, s
     centroid = (6.0 * stiffness * depth[num_verts:] / 9.0)[:, None, None] * nc[:, :, None] * nc[:, None, :]
     face = centroid[:, None, :, None, :].expand(-1, 3, -1, 3, -1).reshape(-1, 9, 9)
     return vertex, face
-
-
-def contact_vertex_blocks(distance: Tensor, normal: Tensor, faces: Tensor, *, stiffness: float,
-                          margin: float) -> Tensor:
-    """The 3 × 3 diagonal blocks (V, 3, 3) of E_c's Gauss–Newton Hessian: a vertex's own
-    6 k_c ReLU(ε − d) n nᵀ plus 1/9 of each of its faces' centroid blocks. Arguments as
-    `contact_gradient`. Formed for the samples in the margin only (the others' blocks are zero)."""
-    num_verts = distance.shape[0] - faces.shape[0]
-    depth = contact_depth(distance, margin=margin)
-    active = torch.nonzero(depth > 0)[:, 0]
-    n = normal[active]
-    blocks = (6.0 * stiffness * depth[active])[:, None, None] * n[:, :, None] * n[:, None, :]
-    own = active < num_verts
-    out = torch.zeros(num_verts, 3, 3, dtype=blocks.dtype, device=blocks.device).index_add_(0, active[own], blocks[own])
-    corners = faces[active[~own] - num_verts].reshape(-1)
-    return out.index_add_(0, corners, (blocks[~own] / 3.0 / 3.0).repeat_interleave(3, dim=0))
 
 
 def contact_vertices(distance: Tensor, faces: Tensor, *, margin: float) -> Tensor:

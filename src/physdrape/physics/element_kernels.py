@@ -9,6 +9,9 @@ CPU (compiled native code) or on CUDA, wherever the tensors live. On a CPU with 
 threads a packed batch's launch is split between its garments, whose vertices are disjoint, and
 the parts run on parallel threads (`physdrape.threads`).
 
+The launch machinery (`run_kernel`) also serves the body contact's kernels on held planes
+(`physics.contact_kernels`).
+
 Differentiation: each kernel is wrapped in a `torch.autograd.Function` whose backward is the
 kernel's adjoint, which Warp generates from the same source. So the energies' gradient is the
 exact gradient of the energies, and the forces' backward is the exact Hessian–vector product
@@ -33,7 +36,7 @@ from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import torch_stream, warp
 
-__all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "strain_energy_per_face", "strain_force"]
+__all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "run_kernel", "strain_energy_per_face", "strain_force"]
 
 
 @functools.cache
@@ -202,7 +205,7 @@ def _kernels() -> dict:
 
 _WARP_DTYPES = {  # torch dtype, trailing shape → the Warp element type of an array's entries
     (torch.float64, ()): "float64", (torch.float64, (3,)): "vec3d", (torch.float64, (2, 2)): "mat22d",
-    (torch.int32, ()): "int32",
+    (torch.float64, (3, 3)): "mat33d", (torch.int32, ()): "int32",
 }
 
 
@@ -212,28 +215,30 @@ def _to_warp(wp, tensor: Tensor, element_dims: int):
 
 
 class _ElementKernel(torch.autograd.Function):
-    """out = kernel(x, constants) with its Warp adjoint as the backward (module docstring).
+    """out = kernel(x, constants, scalars) with its Warp adjoint as the backward (module docstring).
 
-    x (B, V, 3) float64 contiguous; constants: the kernel's inputs after x, as (tensor, number of
-    trailing element dims) pairs; out_shape: (B, N) for per-element values or (B, V, 3) for forces.
+    x (B, V, 3) float64 contiguous; constants: the kernel's array inputs after x, as (tensor, number
+    of trailing element dims) pairs, rows ↔ elements; scalars: its number inputs after those;
+    out_shape: (B, N) for per-element values, (B, V, 3) for forces or (B, V, 3, 3) for blocks.
     """
 
     @staticmethod
-    def forward(ctx, x: Tensor, name: str, num_elements: int, constants: tuple, out_shape: tuple) -> Tensor:
+    def forward(ctx, x: Tensor, kernel, num_elements: int, constants: tuple, scalars: tuple,
+                out_shape: tuple) -> Tensor:
         wp = _kernels()["wp"]
         out = torch.zeros(out_shape, dtype=torch.float64, device=x.device)
-        per_vertex = len(out_shape) == 3
+        per_vertex = len(out_shape) > 2
 
         def launch(lo: int, hi: int) -> None:
-            wp.launch(_kernels()[name], dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
-                      inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants)],
+            wp.launch(kernel, dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
+                      inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants), *scalars],
                       outputs=[_to_warp(wp, out if per_vertex else out[:, lo:hi], len(out_shape) - 2)])
 
         if num_elements and x.shape[0]:
             with torch_stream(x.device):
                 run_parts(launch, _parts(x, constants[0][0]), "elements")
         ctx.save_for_backward(x)
-        ctx.launch = (name, num_elements, constants, out_shape)
+        ctx.launch = (kernel, num_elements, constants, scalars, out_shape)
         return out
 
     @staticmethod
@@ -242,7 +247,7 @@ class _ElementKernel(torch.autograd.Function):
             raise RuntimeError("the element kernels are differentiable once: their backward cannot be "
                                "differentiated again (create_graph=True, torch.func.hessian)")
         (x,) = ctx.saved_tensors
-        name, num_elements, constants, out_shape = ctx.launch
+        kernel, num_elements, constants, scalars, out_shape = ctx.launch
         wp = _kernels()["wp"]
         grad_x = torch.zeros_like(x)
         if num_elements and x.shape[0]:
@@ -250,19 +255,20 @@ class _ElementKernel(torch.autograd.Function):
             grad_out = grad_out.to(torch.float64).contiguous()
             # the constants' adjoints are written to scratch arrays nobody reads
             scratch = [(torch.zeros_like(t) if t.is_floating_point() else t, d) for t, d in constants]
-            per_vertex = len(out_shape) == 3
+            per_vertex = len(out_shape) > 2
 
             def launch(lo: int, hi: int) -> None:
                 rows = slice(None) if per_vertex else slice(lo, hi)
-                wp.launch(_kernels()[name], dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
-                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants)],
+                wp.launch(kernel, dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
+                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants), *scalars],
                           outputs=[_to_warp(wp, out[:, rows], len(out_shape) - 2)],
-                          adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in scratch)],
+                          adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in scratch),
+                                      *(type(v)(0) for v in scalars)],
                           adj_outputs=[_to_warp(wp, grad_out[:, rows], len(out_shape) - 2)], adjoint=True)
 
             with torch_stream(x.device):
                 run_parts(launch, _parts(x, constants[0][0]), "elements")
-        return grad_x, None, None, None, None
+        return grad_x, None, None, None, None, None
 
 
 def _parts(x: Tensor, elements: Tensor) -> list[tuple[int, int]]:
@@ -289,8 +295,18 @@ def kernel_constant(t: Tensor) -> Tensor:
     return _CONSTANTS.get(t, lambda u: u.to(target).contiguous())
 
 
-def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int], num_elements: int,
-         per_vertex: bool) -> Tensor:
+def run_kernel(kernel, x: Tensor, constants: list[Tensor], element_dims: list[int], num_elements: int,
+               out_dims: tuple[int, ...] | None, scalars: tuple = ()) -> Tensor:
+    """One launch of a Warp element kernel over `num_elements` elements, differentiable once in x
+    (its backward is the kernel's adjoint; the constants are not differentiated).
+
+    The kernel's inputs are x (B, V, 3) as vec3d, then each of `constants` (rows ↔ elements; the
+    first is the elements' vertex table, by which a packed batch's launch is split between threads)
+    with its number of trailing element dims, then `scalars` (numbers); its output is one value per
+    element (``out_dims`` None: (..., N)) or per vertex (``out_dims`` (3,) or (3, 3): (..., V, 3) or
+    (..., V, 3, 3)), summed atomically. x (..., V, 3) any float dtype; computed in float64 and
+    returned in x's dtype.
+    """
     if any(t.requires_grad for t in constants):
         raise ValueError("the cloth's coefficients are constants of the element kernels: they are not "
                          "differentiated (detach them, or differentiate with respect to x only)")
@@ -299,9 +315,14 @@ def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int],
     batch = math.prod(lead)
     x64 = x.reshape(batch, num_verts, 3).to(torch.float64).contiguous()
     packed = tuple(kernel_constant(t) for t in constants)
-    out_shape = (batch, num_verts, 3) if per_vertex else (batch, num_elements)
-    out = _ElementKernel.apply(x64, name, num_elements, tuple(zip(packed, element_dims)), out_shape)
+    out_shape = (batch, num_elements) if out_dims is None else (batch, num_verts, *out_dims)
+    out = _ElementKernel.apply(x64, kernel, num_elements, tuple(zip(packed, element_dims)), tuple(scalars), out_shape)
     return out.reshape(*lead, *out_shape[1:]).to(x.dtype)
+
+
+def _run(name: str, x: Tensor, constants: list[Tensor], element_dims: list[int], num_elements: int,
+         per_vertex: bool) -> Tensor:
+    return run_kernel(_kernels()[name], x, constants, element_dims, num_elements, (3,) if per_vertex else None)
 
 
 def strain_energy_per_face(x: Tensor, faces: Tensor, rest_inv: Tensor, volume: Tensor, mu: Tensor,

@@ -18,10 +18,10 @@ from physdrape.physics.contact import (
     DEFAULT_MARGIN,
     DEFAULT_STIFFNESS,
     contact_energy,
-    contact_gradient,
     contact_hessian_blocks,
     contact_vertices,
     garment_energy,
+    plane_contact_forces,
     query_samples,
     sample_index,
 )
@@ -149,7 +149,7 @@ class _Newton:
         return _ContactState(
             distance=distance, normal=normal, inside=q.inside,
             energy=garment_energy(contact_energy(distance, stiffness=k, margin=eps), self.cloth),
-            grad=contact_gradient(distance, normal, faces, stiffness=k, margin=eps),
+            grad=-plane_contact_forces(x, faces, q.closest.to(x.dtype), normal, stiffness=k, margin=eps),
             contact=contact_vertices(distance, faces, margin=eps),
         )
 

@@ -1,0 +1,89 @@
+"""The body-contact penalty on held closest-point planes, as NVIDIA Warp kernels (`physics.contact`
+exposes them).
+
+A solver step evaluates the contact at every sample (vertices, then face centroids) several times:
+its distance to its plane for the energy, its force and its Gauss–Newton block. As chains of torch
+ops (gathers for the centroids, outer products, index_add with repeated rows) each costs several
+times the arithmetic; here each is one launch with one thread per sample, summing into the
+vertices atomically, on the CPU or on CUDA. The energy itself stays `contact.contact_energy` of
+the distances, the one formula every user of the penalty shares.
+
+A sample is given by its row of the corner table (`contact.sample_corners`): a vertex sample
+repeats its vertex three times, a centroid sample names its face's corners. Its point is the
+vertex, or (x_a + x_b + x_c) / 3 summed in that order (as `contact.contact_samples` forms it);
+its distance to its plane (p, n) is d = (s − p)·n, and a centroid's force and blocks are shared
+equally by its corners (∂s/∂x_a = I/3).
+"""
+
+# No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
+import functools
+
+from physdrape.warp_runtime import warp
+
+
+@functools.cache
+def kernels() -> dict:
+    """Define the kernels (first call only; Warp caches the compiled code on disk)."""
+    wp = warp()
+    f64 = wp.float64
+
+    @wp.func
+    def plane_distance(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
+                       closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), b: int, s: int):
+        """d = (s − p)·n of sample s of batch row b."""
+        a = corners[s, 0]
+        centroid = (x[b, a] + x[b, corners[s, 1]] + x[b, corners[s, 2]]) / f64(3.0)
+        point = wp.where(a == corners[s, 1], x[b, a], centroid)
+        return wp.dot(point - closest[s], normal[s])
+
+    @wp.kernel
+    def distance_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
+                        closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
+                        out: wp.array2d(dtype=wp.float64)):
+        b, s = wp.tid()
+        out[b, s] = plane_distance(x, corners, closest, normal, b, s)
+
+    @wp.kernel
+    def force_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
+                     closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), stiffness: wp.float64,
+                     margin: wp.float64, out: wp.array2d(dtype=wp.vec3d)):
+        """f = 3 k_c ReLU(ε − d)² n onto a vertex sample's vertex, a third of it onto each corner
+        of a centroid sample."""
+        b, s = wp.tid()
+        depth = wp.max(margin - plane_distance(x, corners, closest, normal, b, s), f64(0.0))
+        if depth > f64(0.0):
+            a = corners[s, 0]
+            c = corners[s, 1]
+            if a == c:
+                wp.atomic_add(out, b, a, (f64(3.0) * stiffness * depth * depth) * normal[s])
+            else:
+                share = (stiffness * depth * depth) * normal[s]
+                wp.atomic_add(out, b, a, share)
+                wp.atomic_add(out, b, c, share)
+                wp.atomic_add(out, b, corners[s, 2], share)
+
+    @wp.kernel(enable_backward=False)
+    def blocks_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
+                      closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), stiffness: wp.float64,
+                      margin: wp.float64, band: wp.float64, out: wp.array2d(dtype=wp.mat33d)):
+        """6 k_c ReLU(ε − d) n nᵀ onto a vertex sample's vertex, a ninth onto each corner of a
+        centroid sample; a sample within `band` of its plane is taken at depth ≥ ε."""
+        b, s = wp.tid()
+        d = plane_distance(x, corners, closest, normal, b, s)
+        if d < band:
+            d = wp.min(d, f64(0.0))
+        depth = wp.max(margin - d, f64(0.0))
+        if depth > f64(0.0):
+            n = normal[s]
+            block = (f64(6.0) * stiffness * depth) * wp.outer(n, n)
+            a = corners[s, 0]
+            c = corners[s, 1]
+            if a == c:
+                wp.atomic_add(out, b, a, block)
+            else:
+                share = block / f64(9.0)
+                wp.atomic_add(out, b, a, share)
+                wp.atomic_add(out, b, c, share)
+                wp.atomic_add(out, b, corners[s, 2], share)
+
+    return {"distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel}
