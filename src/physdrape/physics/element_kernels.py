@@ -26,8 +26,10 @@ may carry leading batch dimensions, x (..., V, 3); the kernels launch over (batc
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects, and
 # a function that names `wp` only in its annotations cannot resolve them from a string.
+import collections
 import functools
 import math
+import threading
 
 import torch
 from torch import Tensor
@@ -230,9 +232,11 @@ class _ElementKernel(torch.autograd.Function):
         per_vertex = len(out_shape) > 2
 
         def launch(lo: int, hi: int) -> None:
-            wp.launch(kernel, dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
-                      inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants), *scalars],
-                      outputs=[_to_warp(wp, out if per_vertex else out[:, lo:hi], len(out_shape) - 2)])
+            recorded = _recorded(kernel, False, x, lo, hi, constants, scalars, out_shape)
+            recorded.set_param_at_index_from_ctype(0, _to_warp(wp, x, 1))
+            recorded.set_param_at_index_from_ctype(
+                1 + len(constants) + len(scalars), _to_warp(wp, out if per_vertex else out[:, lo:hi], len(out_shape) - 2))
+            recorded.launch()
 
         if num_elements and x.shape[0]:
             with torch_stream(x.device):
@@ -253,22 +257,61 @@ class _ElementKernel(torch.autograd.Function):
         if num_elements and x.shape[0]:
             out = torch.zeros(out_shape, dtype=torch.float64, device=x.device)
             grad_out = grad_out.to(torch.float64).contiguous()
-            # the constants' adjoints are written to scratch arrays nobody reads
-            scratch = [(torch.zeros_like(t) if t.is_floating_point() else t, d) for t, d in constants]
             per_vertex = len(out_shape) > 2
+            index_out = 1 + len(constants) + len(scalars)
 
             def launch(lo: int, hi: int) -> None:
                 rows = slice(None) if per_vertex else slice(lo, hi)
-                wp.launch(kernel, dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
-                          inputs=[_to_warp(wp, x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in constants), *scalars],
-                          outputs=[_to_warp(wp, out[:, rows], len(out_shape) - 2)],
-                          adj_inputs=[_to_warp(wp, grad_x, 1), *(_to_warp(wp, t[lo:hi], d) for t, d in scratch),
-                                      *(type(v)(0) for v in scalars)],
-                          adj_outputs=[_to_warp(wp, grad_out[:, rows], len(out_shape) - 2)], adjoint=True)
+                recorded = _recorded(kernel, True, x, lo, hi, constants, scalars, out_shape)
+                recorded.set_param_at_index_from_ctype(0, _to_warp(wp, x, 1))
+                recorded.set_param_at_index_from_ctype(index_out, _to_warp(wp, out[:, rows], len(out_shape) - 2))
+                recorded.set_param_at_index_from_ctype(0, _to_warp(wp, grad_x, 1), adjoint=True)
+                recorded.set_param_at_index_from_ctype(index_out, _to_warp(wp, grad_out[:, rows], len(out_shape) - 2),
+                                                       adjoint=True)
+                recorded.launch()
 
             with torch_stream(x.device):
                 run_parts(launch, _parts(x, constants[0][0]), "elements")
         return grad_x, None, None, None, None, None
+
+
+#: Recorded launches per thread (`_recorded`), the most recently used kept.
+_RECORDED = threading.local()
+_RECORDED_SIZE = 64
+
+
+def _recorded(kernel, adjoint: bool, x: Tensor, lo: int, hi: int, constants: tuple, scalars: tuple, out_shape: tuple):
+    """The launch of `kernel` (forward, or with `adjoint` its adjoint) over elements [lo, hi) of a
+    batch of x.shape[0] rows with these constants and scalars, recorded once (`record_cmd`) and
+    replayed: packing a launch's arguments costs more than a small kernel's work on the CPU, and
+    only x and the output (and in the adjoint their gradients) change from call to call; the
+    caller sets those. Kept per thread (a replay mutates its arguments), keyed by the constants'
+    identities; the entry holds the constants, so an identity cannot be reused while it is kept.
+    The constants' adjoints go to scratch arrays of the entry that nobody reads."""
+    cache = _RECORDED.__dict__.setdefault("launches", collections.OrderedDict())
+    key = (kernel, adjoint, x.device, x.shape[0], lo, hi, tuple(id(t) for t, _ in constants), scalars,
+           out_shape[2:])
+    entry = cache.get(key)
+    if entry is None:
+        wp = _kernels()["wp"]
+        x_ct = _to_warp(wp, x, 1)
+        parts = [_to_warp(wp, t[lo:hi], d) for t, d in constants]
+        out = torch.zeros((x.shape[0], *out_shape[1:]) if len(out_shape) > 2 else (x.shape[0], hi - lo),
+                          dtype=torch.float64, device=x.device)
+        out_ct = _to_warp(wp, out, len(out_shape) - 2)
+        scratch = [torch.zeros_like(t[lo:hi]) if t.is_floating_point() else t[lo:hi] for t, _ in constants]
+        adjoint_args = {}
+        if adjoint:
+            adjoint_args = {"adj_inputs": [x_ct, *(_to_warp(wp, t, d) for t, (_, d) in zip(scratch, constants)),
+                                           *(type(v)(0) for v in scalars)],
+                            "adj_outputs": [out_ct], "adjoint": True}
+        launch = wp.launch(kernel, dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
+                           inputs=[x_ct, *parts, *scalars], outputs=[out_ct], record_cmd=True, **adjoint_args)
+        entry = cache[key] = (launch, [t for t, _ in constants], scratch)
+        while len(cache) > _RECORDED_SIZE:
+            cache.popitem(last=False)
+    cache.move_to_end(key)
+    return entry[0]
 
 
 def _parts(x: Tensor, elements: Tensor) -> list[tuple[int, int]]:
