@@ -233,6 +233,48 @@ def test_interpenetrating_parts_inside_follows_winding_number():
     assert not doubtful[centroids[:, 0] < -0.05].any()  # the far side of the big sphere is clean
 
 
+def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_numbers_of_all():
+    """On a closed surface a probe whose outward ray crosses nothing has winding number 0: the
+    doubtful faces found with that filter are those the winding number of every probe gives
+    (overlapping spheres, and the same with a hole, where every probe gets its winding number)."""
+    from physdrape.geometry.proximity import _PROBE_OFFSET
+
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.10)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
+    closed = torch.cat([a_faces, b_faces + len(a_verts)])
+    holed = closed[verts[closed].mean(1)[:, 1] < 0.14]  # a hole in the big sphere's cap: no ray filter
+
+    def by_winding_numbers_of_all(faces):
+        surface = BodySurface(verts, faces)
+        normals = surface._vertex_pseudo_normals()[0]
+        probe = (verts + _PROBE_OFFSET * normals).float().contiguous()
+        owner = torch.zeros(len(verts), dtype=torch.int32)
+        buried = surface._search(probe, owner, winding=True)[1]
+        buried[surface._border] = True
+        radius = 3.0 * (verts[faces] - verts[faces.roll(1, dims=1)]).norm(dim=-1).max()
+        near = torch.cdist(verts, verts[buried]).amin(dim=1) <= radius
+        return near[faces].any(dim=-1), buried, surface, probe, owner, normals
+
+    expected, buried, surface, probe, owner, normals = by_winding_numbers_of_all(closed)
+    assert buried.sum() > 10  # the vertices of each sphere inside the other
+    hits = surface._bvh.ray_hits(probe, owner, normals.float().contiguous())
+    assert not (buried & ~hits).any() and (~hits).sum() > len(verts) // 2  # the filter skips most, no buried one
+    assert torch.equal(surface.doubtful_faces()[0], expected)
+    assert torch.equal(BodySurface(verts, holed).doubtful_faces()[0], by_winding_numbers_of_all(holed)[0])
+
+
+def test_inside_is_the_winding_number_inside_flag_of_query():
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.10)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
+    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    x = sample_points(verts, faces, 300, 100, seed=6, offset=0.06)
+    assert torch.equal(BodySurface(verts, faces).inside(x), BodySurface(verts, faces).query(x).inside)
+    with pytest.raises(ValueError, match="WINDING_NUMBER"):
+        BodySurface(verts, faces, sign_method=SignMethod.PSEUDO_NORMAL).inside(x)
+
+
 def test_a_surface_told_of_its_workload_finds_its_doubtful_faces_first():
     verts, faces = icosphere(3, 0.15)
     told_little, told_much = BodySurface(verts, faces), BodySurface(verts, faces)

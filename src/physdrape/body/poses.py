@@ -183,7 +183,7 @@ def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4) 
         # Accuracy 2 (Warp's default): on this open surface 1.0 misses points just above
         # w = 0.5 that the exact (brute-force) winding number counts; 2.0 agrees with it.
         surface = BodySurface(verts, body.faces[torso], winding_accuracy=2.0)
-        inside = surface.query(verts[:, query[::stride]]).inside
+        inside = surface.inside(verts[:, query[::stride]])
     return inside.sum(dim=1)
 
 

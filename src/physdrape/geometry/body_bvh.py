@@ -73,7 +73,19 @@ def _query_kernels():
             face[i] = -1
             inside[i] = 0
 
-    return wp, closest_kernel, closest_winding_kernel
+    @wp.kernel(enable_backward=False)
+    def ray_kernel(
+        mesh_ids: wp.array(dtype=wp.uint64),
+        body: wp.array(dtype=wp.int32),
+        points: wp.array(dtype=wp.vec3),
+        directions: wp.array(dtype=wp.vec3),
+        hit: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        q = wp.mesh_query_ray(mesh_ids[body[i]], points[i], directions[i], 1.0e30)
+        hit[i] = wp.where(q.result, 1, 0)
+
+    return wp, closest_kernel, closest_winding_kernel, ray_kernel
 
 
 class BodyBVH:
@@ -87,7 +99,7 @@ class BodyBVH:
     """
 
     def __init__(self, verts: Tensor, faces: Tensor, *, with_winding_number: bool) -> None:
-        wp, _, _ = _query_kernels()
+        wp = _query_kernels()[0]
         self.with_winding_number = with_winding_number
         self._device = verts.device
         self._wp_device = wp.device_from_torch(verts.device)
@@ -113,7 +125,7 @@ class BodyBVH:
     def select(self, index: int) -> BodyBVH:
         """Body `index` alone, sharing this batch's BVH (no copy, no build). A refit of either moves
         both; the selection keeps this batch alive."""
-        wp, _, _ = _query_kernels()
+        wp = _query_kernels()[0]
         one = object.__new__(BodyBVH)
         one.with_winding_number = self.with_winding_number
         one._device, one._wp_device = self._device, self._wp_device
@@ -156,6 +168,35 @@ class BodyBVH:
             self._recent.popitem(last=False)
         return face.clone()
 
+    def ray_hits(self, points32: Tensor, body: Tensor, directions32: Tensor, *, threads: int | None = None) -> Tensor:
+        """Whether the ray from each point along its direction hits its body's surface, shape (M,)
+        bool; points32, directions32 (M, 3) float32 and body (M,) int32, contiguous, on the bodies'
+        device (split between CPU threads like `closest_faces`)."""
+        wp, _, _, ray_kernel = _query_kernels()
+        hit = torch.empty(points32.shape[0], dtype=torch.int32, device=points32.device)
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(ray_kernel, dim=hi - lo, device=self._wp_device,
+                      inputs=[self._mesh_ids, wp.from_torch(body[lo:hi], dtype=wp.int32),
+                              wp.from_torch(points32[lo:hi], dtype=wp.vec3),
+                              wp.from_torch(directions32[lo:hi], dtype=wp.vec3)],
+                      outputs=[wp.from_torch(hit[lo:hi], dtype=wp.int32)])
+
+        self._run_chunks(launch, points32.shape[0], threads)
+        return hit.bool()
+
+    def _run_chunks(self, launch, n: int, threads: int | None) -> None:
+        """launch(lo, hi) over n points: in chunks on parallel CPU threads when there are enough
+        points (Warp releases the GIL inside a kernel; bit-for-bit the result of one launch)."""
+        threads = threads or torch.get_num_threads()
+        chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
+        if chunks > 1:
+            bounds = np.linspace(0, n, chunks + 1).astype(int).tolist()
+            run_parts(launch, list(itertools.pairwise(bounds)), "bvh")
+        elif n:
+            with torch_stream(self._device):
+                launch(0, n)
+
     def closest_faces(
         self, points32: Tensor, body: Tensor, *, winding_accuracy: float, threads: int | None = None,
         winding: bool | None = None, reuse: bool = False,
@@ -183,7 +224,7 @@ class BodyBVH:
             if winding:
                 raise ValueError("closest_faces(reuse=True) keeps closest faces only, not winding numbers")
             return self._reusing(points32, body, winding_accuracy=winding_accuracy, threads=threads), None
-        wp, closest_kernel, closest_winding_kernel = _query_kernels()
+        wp, closest_kernel, closest_winding_kernel, _ = _query_kernels()
         n = points32.shape[0]
         face = torch.empty(n, dtype=torch.int32, device=points32.device)
         with_wn = self.with_winding_number if winding is None else winding
@@ -204,14 +245,7 @@ class BodyBVH:
                 wp.launch(closest_kernel, dim=hi - lo, device=self._wp_device,
                           inputs=[self._mesh_ids, owner, points, max_dist], outputs=[out_face])
 
-        threads = threads or torch.get_num_threads()
-        chunks = min(threads, n // _MIN_POINTS_PER_THREAD) if self._wp_device.is_cpu else 1
-        if chunks > 1:
-            bounds = np.linspace(0, n, chunks + 1).astype(int).tolist()
-            run_parts(launch, list(itertools.pairwise(bounds)), "bvh")  # Warp releases the GIL inside a kernel
-        elif n:
-            with torch_stream(self._device):
-                launch(0, n)
+        self._run_chunks(launch, n, threads)
         if n and int(face.min()) < 0:
             raise RuntimeError("the body BVH found no triangle for some points: every face of the body is "
                                "degenerate (zero area); check the body faces")

@@ -86,14 +86,23 @@ def angle_weighted_vertex_normals(verts: Tensor, faces: Tensor) -> Tensor:
         verts: vertex positions [m], shape (..., Vb, 3).
         faces: triangles, shape (F, 3) int64.
     """
-    tri = verts[..., faces, :]  # (..., F, 3, 3)
-    fn = face_normals(verts, faces)
-    out = torch.zeros_like(verts)
+    lead, num_verts = verts.shape[:-2], verts.shape[-2]
+    flat = verts.reshape(-1, num_verts, 3)
+    batch = flat.shape[0]
+    # the batch's meshes as one of batch · Vb vertices: sums into rows along dim 0 (index_add's
+    # fast path; along dim −2 of a batched tensor it is several times slower)
+    rows = (faces[None] + num_verts * torch.arange(batch, device=faces.device)[:, None, None]).reshape(-1, 3)
+    points = flat.reshape(-1, 3)
+    corners = [points.index_select(0, rows[:, k]) for k in range(3)]
+    fn = torch.linalg.cross(corners[1] - corners[0], corners[2] - corners[0])
+    length = fn.norm(dim=-1, keepdim=True)
+    fn = fn / torch.where(length > 0, length, torch.ones_like(length))
+    out = torch.zeros_like(points)
+    tiny = torch.finfo(verts.dtype).tiny
     for k in range(3):
-        e1 = tri[..., (k + 1) % 3, :] - tri[..., k, :]
-        e2 = tri[..., (k + 2) % 3, :] - tri[..., k, :]
-        cos = (e1 * e2).sum(-1) / (e1.norm(dim=-1) * e2.norm(dim=-1)).clamp_min(torch.finfo(verts.dtype).tiny)
-        angle = torch.acos(cos.clamp(-1.0, 1.0))
-        out = out.index_add(-2, faces[:, k], fn * angle[..., None])
+        e1 = corners[(k + 1) % 3] - corners[k]
+        e2 = corners[(k + 2) % 3] - corners[k]
+        cos = (e1 * e2).sum(-1) / (e1.norm(dim=-1) * e2.norm(dim=-1)).clamp_min(tiny)
+        out.index_add_(0, rows[:, k], fn * torch.acos(cos.clamp(-1.0, 1.0))[:, None])
     length = out.norm(dim=-1, keepdim=True)
-    return out / torch.where(length > 0, length, torch.ones_like(length))
+    return (out / torch.where(length > 0, length, torch.ones_like(length))).reshape(*lead, num_verts, 3)
