@@ -13,10 +13,13 @@ Rows (the bundled model, T = 15, one torch thread, medians):
 - with `--cold`: a new process running `physdrape drape --out TMP` (imports, model and body
   load, transfer fit, drape, every output file).
 
-With `--base COMMIT` the same measurements run on that commit's source (a temporary git worktree
-with the same virtual environment), in separate processes that alternate with this commit's over
-`--rounds` rounds, so that both see the same machine load; the table gives both medians and their
-ratio. On a shared machine the numbers move with the load: the file records the load average.
+With `--base COMMIT` that commit's source runs in the same process as this commit's, exported
+under another package name (`physdrape_base`: `git archive` of its `src/physdrape` with the package's
+own imports renamed), and the two Drapers take turns call by call (the order swapped every
+repeat), so that both see the same machine at the same moments: on a shared machine the speed
+drifts by tens of percent over minutes, which separate processes turn into noise larger than
+the change measured. The table gives both medians and the median of the per-call ratios. With
+`--cold` the base's CLI runs as `python -m physdrape_base.cli` from the export.
 Writes <out>.md and <out>.json with the command and the commit.
 """
 
@@ -25,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shlex
 import statistics
 import subprocess
@@ -44,60 +48,81 @@ ROWS = {
 TARGETS = {"same_pose": 150.0, "x_init": 20.0, "new_pose": 250.0, "batch8": 100.0}
 
 
-def worker(repeats: int, device: str, threads: int) -> dict[str, list[float]]:
-    """Time the rows in this process (the source on sys.path) and return the samples [ms]."""
+def worker(repeats: int, device: str, threads: int, packages: list[str]) -> dict[str, dict[str, list[float]]]:
+    """Time the rows in this process for each package (its source on sys.path), taking turns call
+    by call, and return the samples [ms] per package."""
+    import importlib
+
     import torch
 
     torch.set_num_threads(threads)
-    from physdrape.api import Draper
-
-    draper = Draper(device=device) if device != "cpu" else Draper()
-    draper.drape("default")  # fits and caches the skinning transfer, poses the default body
-    out: dict[str, list[float]] = {key: [] for key in ROWS}
-    for _ in range(repeats):
-        t = time.perf_counter()
-        [res] = draper.drape("default")
-        out["same_pose"].append(1e3 * (time.perf_counter() - t))
-        out["x_init"].append(1e3 * res.timings["init_s"])
-    poses = [draper.poses(f"random:{1000 + k}")[0].pose[0] for k in range(repeats + 1)]
-    draper.drape("default", pose=poses[0])  # a first new pose outside the timing
-    for pose in poses[1:]:
-        t = time.perf_counter()
-        draper.drape("default", pose=pose)
-        out["new_pose"].append(1e3 * (time.perf_counter() - t))
-    eight = [draper.poses(f"random:{k}")[0].pose[0] for k in range(8)]
-    draper.drape("default", pose=eight, batch_size=8)
-    for _ in range(max(2, repeats // 2)):
-        t = time.perf_counter()
+    drapers = {}
+    for package in packages:
+        api = importlib.import_module(f"{package}.api")
+        drapers[package] = api.Draper(device=device) if device != "cpu" else api.Draper()
+    for draper in drapers.values():
+        draper.drape("default")  # fits and caches the skinning transfer, poses the default body
+    first = drapers[packages[0]]
+    poses = [first.poses(f"random:{1000 + k}")[0].pose[0] for k in range(repeats + 1)]
+    eight = [first.poses(f"random:{k}")[0].pose[0] for k in range(8)]
+    for draper in drapers.values():
+        draper.drape("default", pose=poses[0])  # a first new pose outside the timing
         draper.drape("default", pose=eight, batch_size=8)
-        out["batch8"].append(1e3 * (time.perf_counter() - t) / 8)
+    out = {package: {key: [] for key in ROWS} for package in packages}
+    for k in range(repeats):
+        for package in packages if k % 2 == 0 else packages[::-1]:
+            draper, row = drapers[package], out[package]
+            t = time.perf_counter()
+            [res] = draper.drape("default")
+            row["same_pose"].append(1e3 * (time.perf_counter() - t))
+            row["x_init"].append(1e3 * res.timings["init_s"])
+            t = time.perf_counter()
+            draper.drape("default", pose=poses[k + 1])
+            row["new_pose"].append(1e3 * (time.perf_counter() - t))
+            if k < max(2, repeats // 2):
+                t = time.perf_counter()
+                draper.drape("default", pose=eight, batch_size=8)
+                row["batch8"].append(1e3 * (time.perf_counter() - t) / 8)
     return out
 
 
-def _run_worker(src: Path, repeats: int, device: str, threads: int) -> dict[str, list[float]]:
-    env = dict(os.environ, PYTHONPATH=str(src), OMP_NUM_THREADS=str(threads))
+def export_base(commit: str, dest: Path) -> Path:
+    """`src/physdrape` of `commit` as the package `physdrape_base` under `dest` (its own imports
+    and resource lookups renamed), so that it can be imported beside this commit's `physdrape`."""
+    archive = subprocess.run(["git", "archive", commit, "src/physdrape"], cwd=ROOT, check=True, capture_output=True)
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive.stdout, check=True)
+    package = dest / "physdrape_base"
+    (dest / "src" / "physdrape").rename(package)
+    pattern = re.compile(r'(\bfrom physdrape)([ .])|(^\s*import physdrape)\b|(files\("physdrape)"\)', re.MULTILINE)
+    for path in package.rglob("*.py"):
+        text = path.read_text()
+        path.write_text(pattern.sub(lambda m: (m.group(1) + "_base" + m.group(2)) if m.group(1)
+                                    else (m.group(3) + "_base") if m.group(3) else m.group(4) + '_base")', text))
+    return dest
+
+
+def _run_worker(paths: list[Path], packages: list[str], repeats: int, device: str,
+                threads: int) -> dict[str, dict[str, list[float]]]:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(str(p) for p in paths), OMP_NUM_THREADS=str(threads))
     proc = subprocess.run([sys.executable, __file__, "--worker", "--repeats", str(repeats), "--device", device,
-                           "--threads", str(threads)], env=env, capture_output=True, text=True, cwd=ROOT, check=False)
+                           "--threads", str(threads), "--packages", *packages], env=env, capture_output=True,
+                          text=True, cwd=ROOT, check=False)
     if proc.returncode != 0:
-        raise RuntimeError(f"the timing process for {src} failed:\n{proc.stderr[-3000:]}")
+        raise RuntimeError(f"the timing process for {packages} failed:\n{proc.stderr[-3000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def _cold_cli(src: Path, repeats: int, threads: int) -> list[float]:
+def _cold_cli(src: Path, package: str, repeats: int, threads: int) -> list[float]:
     env = dict(os.environ, PYTHONPATH=str(src), OMP_NUM_THREADS=str(threads))
     times = []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(repeats):
             t = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "physdrape.cli", "drape", "--out", f"{tmp}/o{k}", "--threads",
+            subprocess.run([sys.executable, "-m", f"{package}.cli", "drape", "--out", f"{tmp}/o{k}", "--threads",
                             str(threads)], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                            env=env, cwd=ROOT)
             times.append(1e3 * (time.perf_counter() - t))
     return times
-
-
-def _git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True, text=True).stdout.strip()
 
 
 def main() -> None:
@@ -111,9 +136,10 @@ def main() -> None:
     parser.add_argument("--out", default="results/bench_drape")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--device", default="cpu", help=argparse.SUPPRESS)
+    parser.add_argument("--packages", nargs="+", default=["physdrape"], help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(worker(args.repeats, args.device, args.threads)))
+        print(json.dumps(worker(args.repeats, args.device, args.threads, args.packages)))
         return
 
     import torch
@@ -123,45 +149,50 @@ def main() -> None:
 
     devices = [d for d in args.devices if d == "cpu" or torch.cuda.is_available()]
     skipped = [d for d in args.devices if d not in devices]
-    sources = {"this commit": ROOT / "src"}
-    base_dir = None
-    if args.base:
-        base_dir = Path(tempfile.mkdtemp(prefix="physdrape-base-"))
-        _git("worktree", "add", "--detach", str(base_dir / "tree"), args.base)
-        sources[f"base {args.base[:10]}"] = base_dir / "tree" / "src"
+    this, base = "this commit", f"base {args.base[:10]}" if args.base else None
     samples: dict[str, dict[str, list[float]]] = {}
+    ratios: dict[str, list[float]] = {}
     load = []
-    try:
+    with tempfile.TemporaryDirectory(prefix="physdrape-base-") as tmp:
+        base_dir = export_base(args.base, Path(tmp)) if args.base else None
         for _ in range(args.rounds):
             for device in devices:
-                for name, src in sources.items():
-                    if device != "cpu" and name != "this commit":
-                        continue
-                    key = f"{name} ({device})"
-                    got = _run_worker(src, args.repeats, device, args.threads)
-                    load.append(os.getloadavg()[0])
-                    for row, values in got.items():
-                        samples.setdefault(key, {}).setdefault(row, []).extend(values)
+                paired = base_dir is not None and device == "cpu"
+                packages = ["physdrape", "physdrape_base"] if paired else ["physdrape"]
+                got = _run_worker([ROOT / "src", *([base_dir] if paired else [])], packages, args.repeats, device,
+                                  args.threads)
+                load.append(os.getloadavg()[0])
+                for package, name in zip(packages, [this, base]):
+                    for row, values in got[package].items():
+                        samples.setdefault(f"{name} ({device})", {}).setdefault(row, []).extend(values)
+                if paired:
+                    for row in got["physdrape"]:
+                        ratios.setdefault(row, []).extend(
+                            b / a for a, b in zip(got["physdrape"][row], got["physdrape_base"][row]))
             if args.cold:
-                for name, src in sources.items():
-                    samples.setdefault(f"{name} (cpu)", {}).setdefault("cold_cli", []).extend(
-                        _cold_cli(src, 1, args.threads))
-    finally:
-        if base_dir is not None:
-            _git("worktree", "remove", "--force", str(base_dir / "tree"))
+                samples.setdefault(f"{this} (cpu)", {}).setdefault("cold_cli", []).extend(
+                    _cold_cli(ROOT / "src", "physdrape", 1, args.threads))
+                if base_dir is not None:
+                    samples.setdefault(f"{base} (cpu)", {}).setdefault("cold_cli", []).extend(
+                        _cold_cli(base_dir, "physdrape_base", 1, args.threads))
+                    ratios.setdefault("cold_cli", []).append(samples[f"{base} (cpu)"]["cold_cli"][-1]
+                                                             / samples[f"{this} (cpu)"]["cold_cli"][-1])
     rows = dict(ROWS, **({"cold_cli": "cold `physdrape drape` (new process, all outputs) [ms]"} if args.cold else {}))
     medians = {key: {row: statistics.median(v) for row, v in got.items()} for key, got in samples.items()}
     columns = list(medians)
     command = shlex.join(["python", *sys.argv])
     record = {"command": command, "provenance": provenance(), "threads": args.threads, "repeats": args.repeats,
               "rounds": args.rounds, "load_average_during": load, "load_average_end": os.getloadavg(),
-              "devices_skipped": skipped, "targets_ms": TARGETS, "samples_ms": samples, "medians_ms": medians}
-    head = ["| row | " + " | ".join(columns) + (" | ratio base / this |" if args.base else " |") + " target |",
+              "devices_skipped": skipped, "targets_ms": TARGETS, "samples_ms": samples, "medians_ms": medians,
+              "paired_ratios_base_over_this": ratios}
+    head = ["| row | " + " | ".join(columns) + (" | base / this (median of paired calls) |" if args.base else " |")
+            + " target |",
             "|---|" + "---:|" * len(columns) + ("---:|" if args.base else "") + "---:|"]
     lines = ["# Drape timings through the public API (bundled model, T = 15)", "",
              *source_lines(command, record["provenance"]),
-             f"{args.threads} torch thread(s); medians over {args.rounds} alternating process(es) per source × "
-             f"{args.repeats} calls; load average (1 min) during the run "
+             f"{args.threads} torch thread(s); medians over {args.rounds} process(es) × {args.repeats} calls"
+             + (" (this commit and the base taking turns call by call in each)" if args.base else "")
+             + "; load average (1 min) during the run "
              + ", ".join(f"{v:.2f}" for v in load) + (f"; not available here: {', '.join(skipped)}" if skipped else ""),
              "", *head]
     for row, label in rows.items():
@@ -169,8 +200,7 @@ def main() -> None:
         cells = " | ".join("–" if v is None else f"{v:.0f}" for v in values)
         ratio = ""
         if args.base:
-            this, base = medians[columns[0]].get(row), medians.get(f"base {args.base[:10]} (cpu)", {}).get(row)
-            ratio = f" {base / this:.2f} |" if this and base else " – |"
+            ratio = f" {statistics.median(ratios[row]):.2f} |" if ratios.get(row) else " – |"
         target = f"≤ {TARGETS[row]:.0f}" if row in TARGETS else "–"
         lines.append(f"| {label} | {cells} |{ratio} {target} |")
     write_report(args.out, lines, record)
