@@ -63,6 +63,7 @@ from physdrape.geometry.closest_point import (
     feature_pseudo_normals,
 )
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
+from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
 
 __all__ = [
@@ -132,41 +133,6 @@ class SurfaceQuery:
 
 
 # --------------------------------------------------------------------------------------------
-# Input checks (at the boundary only)
-# --------------------------------------------------------------------------------------------
-
-
-def _check_verts(verts: Tensor) -> Tensor:
-    if not isinstance(verts, Tensor) or not verts.is_floating_point():
-        raise TypeError(f"body verts must be a floating-point torch.Tensor, got {type(verts).__name__}"
-                        f"{'' if not isinstance(verts, Tensor) else ' of dtype ' + str(verts.dtype)}")
-    if verts.ndim == 2:
-        verts = verts[None]
-    if verts.ndim != 3 or verts.shape[-1] != 3 or verts.shape[1] < 3:
-        raise ValueError(f"body verts must have shape (Vb, 3) or (B, Vb, 3) with Vb >= 3, got {tuple(verts.shape)}")
-    if verts.shape[0] < 1:
-        raise ValueError("body verts hold an empty batch (B = 0)")
-    if not torch.isfinite(verts).all():
-        bad = torch.nonzero(~torch.isfinite(verts).all(-1))[0].tolist()
-        raise ValueError(f"body verts contain NaN/inf (first at batch, vertex = {bad}); fix the body model output")
-    return verts
-
-
-def _check_faces(faces: Tensor | np.ndarray, num_verts: int, device: torch.device) -> Tensor:
-    faces = torch.as_tensor(faces, device=device)
-    if faces.dtype.is_floating_point or faces.dtype == torch.bool:
-        raise TypeError(f"faces must be an integer tensor, got dtype {faces.dtype}")
-    if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] < 1:
-        raise ValueError(f"faces must have shape (Fb, 3) with Fb >= 1, got {tuple(faces.shape)}")
-    faces = faces.to(torch.int64)
-    lo, hi = int(faces.min()), int(faces.max())
-    if lo < 0 or hi >= num_verts:
-        raise ValueError(f"indices in faces must be in [0, {num_verts}) (got {lo if lo < 0 else hi}); "
-                         "faces and verts do not belong to the same mesh")
-    return faces
-
-
-# --------------------------------------------------------------------------------------------
 # BodySurface
 # --------------------------------------------------------------------------------------------
 
@@ -216,8 +182,8 @@ class BodySurface:
                              "smaller values misclassify points near the body")
         self.near_tol = float(near_tol)
         self.winding_accuracy = float(winding_accuracy)
-        verts = _check_verts(verts)
-        self.faces = _check_faces(faces, verts.shape[1], verts.device)
+        verts = check_verts(verts)
+        self.faces = check_faces(faces, verts.shape[1], verts.device)
         edge_nbr, border = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
         self._edge_nbr = torch.from_numpy(edge_nbr).to(verts.device)
         self._border = torch.from_numpy(border).to(verts.device)
@@ -284,7 +250,7 @@ class BodySurface:
         Args:
             verts: new positions [m], shape (Vb, 3) or (B, Vb, 3). A different B rebuilds.
         """
-        verts = _check_verts(verts)
+        verts = check_verts(verts)
         if verts.shape[1] != self.num_verts:
             raise ValueError(f"update() got {verts.shape[1]} vertices per body, the surface has {self.num_verts}; "
                              "a different topology needs a new BodySurface")
@@ -406,51 +372,6 @@ class BodySurface:
         differentiated (used for the sign, and as the direction of on-surface points)."""
         return feature_pseudo_normals(bary, body, face, self.faces, *self._feature_normals()).to(bary.dtype)
 
-    def _packed(self, points: Tensor, body_index: Tensor | None) -> tuple[Tensor, Tensor, torch.Size]:
-        """The query points checked and flattened: (N, 3), each point's body (N,) int64, and the
-        leading shape of `points` (see `query`)."""
-        if not isinstance(points, Tensor) or not points.is_floating_point():
-            raise TypeError("points must be a floating-point torch.Tensor")
-        if points.dtype != self.verts.dtype:
-            raise TypeError(f"points have dtype {points.dtype} but the body verts have {self.verts.dtype}; "
-                            "convert one of them explicitly")
-        if points.device != self.verts.device:
-            raise ValueError(f"points are on {points.device} but the body is on {self.verts.device}")
-        if points.shape[-1:] != (3,):
-            raise ValueError(f"points must have a last dimension of 3, got shape {tuple(points.shape)}")
-        lead = points.shape[:-1]
-        num_bodies = self.batch_size
-        if body_index is not None:
-            if points.ndim != 2:
-                raise ValueError(f"with body_index, points must be packed (N, 3), got {tuple(points.shape)}")
-            body_index = torch.as_tensor(body_index, device=points.device)
-            if body_index.shape != lead or body_index.dtype.is_floating_point:
-                raise ValueError(f"body_index must be an integer tensor of shape ({lead[0]},), "
-                                 f"got {tuple(body_index.shape)} {body_index.dtype}")
-            body = body_index.to(torch.int64)
-            if body.numel() and (int(body.min()) < 0 or int(body.max()) >= num_bodies):
-                raise ValueError(f"indices in body_index must be in [0, {num_bodies}) "
-                                 f"(got {int(body.min()) if int(body.min()) < 0 else int(body.max())})")
-        elif points.ndim == 3:
-            if points.shape[0] != num_bodies:
-                raise ValueError(f"points of shape (B, N, 3) need B = {num_bodies} (the number of bodies), "
-                                 f"got B = {points.shape[0]}")
-            body = torch.arange(num_bodies, device=points.device).repeat_interleave(points.shape[1])
-        elif points.ndim == 2:
-            if num_bodies != 1:
-                raise ValueError(f"the surface holds {num_bodies} bodies: pass points as (B, N, 3) "
-                                 "or packed (N, 3) with body_index")
-            body = torch.zeros(points.shape[0], dtype=torch.int64, device=points.device)
-        else:
-            raise ValueError(f"points must have shape (N, 3) or (B, N, 3), got {tuple(points.shape)}")
-        x = points.reshape(-1, 3)
-        finite = torch.isfinite(x).all(-1)
-        if not finite.all():
-            first = int(torch.nonzero(~finite)[0])
-            raise ValueError(f"points contain NaN/inf ({int((~finite).sum())} of {x.shape[0]}, first at flat "
-                             f"index {first}); the garment state diverged upstream")
-        return x, body, lead
-
     def query(self, points: Tensor, *, body_index: Tensor | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
 
@@ -463,7 +384,7 @@ class BodySurface:
         Returns:
             A ``SurfaceQuery`` whose fields have the leading shape ``points.shape[:-1]``.
         """
-        x, body, lead = self._packed(points, body_index)
+        x, body, lead = packed_points(points, body_index, self.verts)
         with torch.no_grad():
             x32 = x.detach().to(torch.float32).contiguous()
             body32 = body.to(torch.int32).contiguous()
@@ -511,7 +432,7 @@ class BodySurface:
         shape as `query`; needs ``SignMethod.WINDING_NUMBER``."""
         if self.sign_method is not SignMethod.WINDING_NUMBER:
             raise ValueError("inside() needs sign_method=WINDING_NUMBER")
-        x, body, lead = self._packed(points, body_index)
+        x, body, lead = packed_points(points, body_index, self.verts)
         inside = self._search(x.to(torch.float32).contiguous(), body.to(torch.int32).contiguous(), winding=True)[1]
         return inside.reshape(lead)
 
