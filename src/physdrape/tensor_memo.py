@@ -16,7 +16,8 @@ V = TypeVar("V")
 class TensorMemo:
     """make(t) per tensor t, by the tensor's id, reused while t lives unmodified (its weak
     reference and version counter are checked, so a recycled id or an in-place change makes the
-    value again); the `size` most recently used are kept."""
+    value again); the `size` most recently used are kept, and a value is let go when its tensor
+    dies (a batch's derived copies do not outlive the batch)."""
 
     def __init__(self, size: int) -> None:
         self.size = size
@@ -28,8 +29,15 @@ class TensorMemo:
             self._values.move_to_end(id(t))
             return hit[2]
         value = make(t)
-        self._values[id(t)] = (weakref.ref(t), t._version, value)
+        key = id(t)
+        self._values[key] = (weakref.ref(t, lambda ref: self._forget(key, ref)), t._version, value)
         self._values.move_to_end(id(t))
         while len(self._values) > self.size:
             self._values.popitem(last=False)
         return value
+
+    def _forget(self, key: int, ref: weakref.ref) -> None:
+        """The tensor of `ref` died: drop its value (unless the id already holds a newer one)."""
+        hit = self._values.get(key)
+        if hit is not None and hit[0] is ref:
+            del self._values[key]

@@ -106,6 +106,33 @@ def test_cached_coefficient_copies_follow_their_tensors(sheet):
     torch.testing.assert_close(after, physics.strain_energy(x, rebuilt), rtol=0, atol=0)
 
 
+def test_recorded_launches_follow_new_coefficients_and_do_not_keep_them(sheet):
+    """A launch is recorded per constants and replayed; cloths built and dropped one after another
+    (their tensors' ids recycled) each get their own energies and forces, forward and backward,
+    and a dropped cloth's coefficients are not kept alive by the recorded launches."""
+    import gc
+    import weakref
+
+    x = deformed(sheet, seed=3)
+    direction = torch.randn(x.shape, generator=torch.Generator().manual_seed(4), dtype=x.dtype)
+    for k in range(6):
+        material = Material(mu=1.59e4 * (1 + k), lam=3.5e3, k_bend=1e-4 * (1 + k), density=0.3)
+        cloth = Cloth.build(sheet, material)
+        xg = x.clone().requires_grad_()
+        f = physics.strain_forces(xg, cloth) + physics.bend_forces(xg, cloth)
+        (hv,) = torch.autograd.grad(f, xg, grad_outputs=direction)
+        xr = x.clone().requires_grad_()
+        fr = strain_forces(xr, cloth) + bend_forces(xr, cloth)
+        (hvr,) = torch.autograd.grad(fr, xr, grad_outputs=direction)
+        torch.testing.assert_close(f, fr, rtol=1e-10, atol=1e-12 * float(fr.abs().max()))
+        torch.testing.assert_close(hv, hvr, rtol=1e-8, atol=1e-10 * float(hvr.abs().max()))
+        torch.testing.assert_close(physics.strain_energy(x, cloth), strain_energy(x, cloth), rtol=1e-10, atol=0)
+        mu = weakref.ref(cloth.mu)
+        del cloth, f, hv, fr, hvr, xg, xr
+        gc.collect()
+        assert mu() is None
+
+
 def test_the_kernels_atan2_is_within_an_ulp_or_two_and_its_adjoint_exact():
     """The dihedral angle's atan2 (its own rational approximation, `element_kernels`) against
     torch's in every quadrant, on the axes and at extreme ratios; its adjoint is the exact

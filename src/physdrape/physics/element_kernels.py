@@ -30,6 +30,7 @@ import collections
 import functools
 import math
 import threading
+import weakref
 
 import torch
 from torch import Tensor
@@ -233,10 +234,9 @@ class _ElementKernel(torch.autograd.Function):
 
         def launch(lo: int, hi: int) -> None:
             recorded = _recorded(kernel, False, x, lo, hi, constants, scalars, out_shape)
-            recorded.set_param_at_index_from_ctype(0, _to_warp(wp, x, 1))
-            recorded.set_param_at_index_from_ctype(
-                1 + len(constants) + len(scalars), _to_warp(wp, out if per_vertex else out[:, lo:hi], len(out_shape) - 2))
-            recorded.launch()
+            _replay(recorded, [(0, False, _to_warp(wp, x, 1)),
+                               (1 + len(constants) + len(scalars), False,
+                                _to_warp(wp, out if per_vertex else out[:, lo:hi], len(out_shape) - 2))])
 
         if num_elements and x.shape[0]:
             with torch_stream(x.device):
@@ -263,16 +263,31 @@ class _ElementKernel(torch.autograd.Function):
             def launch(lo: int, hi: int) -> None:
                 rows = slice(None) if per_vertex else slice(lo, hi)
                 recorded = _recorded(kernel, True, x, lo, hi, constants, scalars, out_shape)
-                recorded.set_param_at_index_from_ctype(0, _to_warp(wp, x, 1))
-                recorded.set_param_at_index_from_ctype(index_out, _to_warp(wp, out[:, rows], len(out_shape) - 2))
-                recorded.set_param_at_index_from_ctype(0, _to_warp(wp, grad_x, 1), adjoint=True)
-                recorded.set_param_at_index_from_ctype(index_out, _to_warp(wp, grad_out[:, rows], len(out_shape) - 2),
-                                                       adjoint=True)
-                recorded.launch()
+                _replay(recorded, [(0, False, _to_warp(wp, x, 1)),
+                                   (index_out, False, _to_warp(wp, out[:, rows], len(out_shape) - 2)),
+                                   (0, True, _to_warp(wp, grad_x, 1)),
+                                   (index_out, True, _to_warp(wp, grad_out[:, rows], len(out_shape) - 2))])
 
             with torch_stream(x.device):
                 run_parts(launch, _parts(x, constants[0][0]), "elements")
         return grad_x, None, None, None, None, None
+
+
+def _replay(recorded, arrays: list) -> None:
+    """Launch `recorded` with these arrays set first: (argument index, of the adjoint, array
+    descriptor). A descriptor keeps its tensor alive (`_ref`); the ones left in the recorded
+    launch's arguments are let go after the launch (the next replay sets its own)."""
+    for index, adjoint, array in arrays:
+        recorded.set_param_at_index_from_ctype(index, array, adjoint=adjoint)
+    recorded.launch()
+    for _, _, array in arrays:
+        array._ref = array._gradref = None
+
+
+def _unpinned(array):
+    """An array descriptor that does not keep its tensor alive (its owner checks that it lives)."""
+    array._ref = array._gradref = None
+    return array
 
 
 #: Recorded launches per thread (`_recorded`), the most recently used kept.
@@ -286,28 +301,31 @@ def _recorded(kernel, adjoint: bool, x: Tensor, lo: int, hi: int, constants: tup
     replayed: packing a launch's arguments costs more than a small kernel's work on the CPU, and
     only x and the output (and in the adjoint their gradients) change from call to call; the
     caller sets those. Kept per thread (a replay mutates its arguments), keyed by the constants'
-    identities; the entry holds the constants, so an identity cannot be reused while it is kept.
-    The constants' adjoints go to scratch arrays of the entry that nobody reads."""
+    identities and checked against weak references to them (a recycled id makes the launch again;
+    the entry does not keep a batch's constants alive). The constants' adjoints go to scratch
+    arrays of the entry that nobody reads."""
     cache = _RECORDED.__dict__.setdefault("launches", collections.OrderedDict())
     key = (kernel, adjoint, x.device, x.shape[0], lo, hi, tuple(id(t) for t, _ in constants), scalars,
            out_shape[2:])
     entry = cache.get(key)
-    if entry is None:
+    if entry is None or any(ref() is not t for ref, (t, _) in zip(entry[1], constants)):
         wp = _kernels()["wp"]
         x_ct = _to_warp(wp, x, 1)
-        parts = [_to_warp(wp, t[lo:hi], d) for t, d in constants]
+        parts = [_unpinned(_to_warp(wp, t[lo:hi], d)) for t, d in constants]
         out = torch.zeros((x.shape[0], *out_shape[1:]) if len(out_shape) > 2 else (x.shape[0], hi - lo),
                           dtype=torch.float64, device=x.device)
         out_ct = _to_warp(wp, out, len(out_shape) - 2)
-        scratch = [torch.zeros_like(t[lo:hi]) if t.is_floating_point() else t[lo:hi] for t, _ in constants]
-        adjoint_args = {}
-        if adjoint:
-            adjoint_args = {"adj_inputs": [x_ct, *(_to_warp(wp, t, d) for t, (_, d) in zip(scratch, constants)),
+        scratch, adjoint_args = [], {}
+        if adjoint:  # integer constants have no adjoint: their own arrays stand in
+            scratch = [torch.zeros_like(t[lo:hi]) for t, _ in constants if t.is_floating_point()]
+            held = iter(scratch)
+            adjoint_args = {"adj_inputs": [x_ct, *(_unpinned(_to_warp(wp, next(held), d)) if t.is_floating_point() else part
+                                                   for (t, d), part in zip(constants, parts)),
                                            *(type(v)(0) for v in scalars)],
                             "adj_outputs": [out_ct], "adjoint": True}
         launch = wp.launch(kernel, dim=(x.shape[0], hi - lo), device=wp.device_from_torch(x.device),
                            inputs=[x_ct, *parts, *scalars], outputs=[out_ct], record_cmd=True, **adjoint_args)
-        entry = cache[key] = (launch, [t for t, _ in constants], scratch)
+        entry = cache[key] = (launch, [weakref.ref(t) for t, _ in constants], scratch)
         while len(cache) > _RECORDED_SIZE:
             cache.popitem(last=False)
     cache.move_to_end(key)

@@ -1,0 +1,48 @@
+"""`TensorMemo`: values derived from a tensor, by identity, remade after an in-place change, let go
+when the tensor dies, the most recently used kept."""
+
+import gc
+
+import torch
+
+from physdrape.tensor_memo import TensorMemo
+
+
+def test_a_value_is_made_once_per_tensor_and_again_after_an_in_place_change():
+    memo, made = TensorMemo(4), []
+
+    def make(t):
+        made.append(1)
+        return t * 2
+
+    t = torch.arange(3.0)
+    first = memo.get(t, make)
+    assert memo.get(t, make) is first and len(made) == 1
+    t.add_(1.0)  # the version counter moves: the value is made again
+    assert torch.equal(memo.get(t, make), torch.tensor([2.0, 4.0, 6.0])) and len(made) == 2
+
+
+def test_a_value_is_let_go_when_its_tensor_dies():
+    memo = TensorMemo(4)
+    t = torch.zeros(1000)
+    memo.get(t, lambda u: torch.ones(1000))
+    assert len(memo._values) == 1
+    del t
+    gc.collect()
+    assert len(memo._values) == 0
+
+
+def test_the_most_recently_used_are_kept():
+    memo = TensorMemo(2)
+    tensors = [torch.zeros(1) for _ in range(3)]
+    for t in tensors:
+        memo.get(t, lambda u: u + 1)
+    assert set(memo._values) == {id(tensors[1]), id(tensors[2])}
+
+
+def test_a_recycled_id_does_not_return_another_tensors_value():
+    memo = TensorMemo(8)
+    for k in range(50):  # freed tensors' ids come back: each must get its own value
+        t = torch.full((2,), float(k))
+        assert float(memo.get(t, lambda u: u.clone())[0]) == k
+        del t
