@@ -301,11 +301,11 @@ def _recorded(kernel, adjoint: bool, x: Tensor, lo: int, hi: int, constants: tup
     replayed: packing a launch's arguments costs more than a small kernel's work on the CPU, and
     only x and the output (and in the adjoint their gradients) change from call to call; the
     caller sets those. Kept per thread (a replay mutates its arguments), keyed by the constants'
-    identities and checked against weak references to them (a recycled id makes the launch again;
-    the entry does not keep a batch's constants alive). The constants' adjoints go to scratch
+    identities and data pointers and checked against weak references to them (a recycled id makes
+    the launch again; the entry does not keep a batch's constants alive). The constants' adjoints go to scratch
     arrays of the entry that nobody reads."""
     cache = _RECORDED.__dict__.setdefault("launches", collections.OrderedDict())
-    key = (kernel, adjoint, x.device, x.shape[0], lo, hi, tuple(id(t) for t, _ in constants), scalars,
+    key = (kernel, adjoint, x.device, x.shape[0], lo, hi, tuple((id(t), t.data_ptr()) for t, _ in constants), scalars,
            out_shape[2:])
     entry = cache.get(key)
     if entry is None or any(ref() is not t for ref, (t, _) in zip(entry[1], constants)):
