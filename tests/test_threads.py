@@ -1,5 +1,5 @@
-"""`physdrape.threads`: the split of an element table into parts with disjoint vertices, and
-`parallel_map`."""
+"""`physdrape.threads`: the split of an element table into parts with disjoint vertices,
+`parallel_map`, and the split of a batch into groups for threads."""
 
 from __future__ import annotations
 
@@ -10,8 +10,10 @@ from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet
 from physdrape.threads import (
     MIN_ELEMENTS_PER_PART,
+    balanced_groups,
     disjoint_parts,
     parallel_map,
+    single_torch_thread,
 )
 
 
@@ -45,3 +47,67 @@ def test_parallel_map_returns_in_order_and_raises_what_an_item_raised():
 
     with pytest.raises(KeyError):
         parallel_map(fail, list(range(6)), "test", workers=2)
+
+
+def test_balanced_groups_keep_a_key_together_and_balance_the_weights():
+    keys = ["a", "b", "a", "c", "d", "b"]
+    weights = [3.0, 1.0, 3.0, 2.0, 2.0, 1.0]  # a: 6, b: 2, c: 2, d: 2
+    groups = balanced_groups(keys, weights, 2)
+    assert sorted(i for g in groups for i in g) == list(range(6))
+    assert all(g == sorted(g) for g in groups) and [g[0] for g in groups] == sorted(g[0] for g in groups)
+    for key in set(keys):
+        assert sum(any(keys[i] == key for i in g) for g in groups) == 1  # each key in one group
+    loads = sorted(sum(weights[i] for i in g) for g in groups)
+    assert loads == [6.0, 6.0]  # a alone; b, c and d together
+    assert balanced_groups(keys, weights, 1) == [list(range(6))]
+    assert balanced_groups(["x", "x", "x"], [1.0, 1.0, 1.0], 4) == [[0, 1, 2]]  # fewer keys than parts
+    with pytest.raises(ValueError, match="part"):
+        balanced_groups(keys, weights, 0)
+    with pytest.raises(ValueError, match="weights"):
+        balanced_groups(keys, weights[:2], 2)
+
+
+def test_single_torch_thread_restores_the_thread_count():
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with single_torch_thread():
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError), single_torch_thread():
+            raise RuntimeError("inside")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_defined_once_defines_once_under_concurrent_first_calls():
+    import threading
+    import time
+
+    from physdrape.warp_runtime import _DEFINERS, defined_once
+
+    calls = []
+
+    def define():
+        calls.append(threading.get_ident())
+        time.sleep(0.05)  # a slow definition: the other threads arrive meanwhile
+        return object()
+
+    once = defined_once(define)
+    try:
+        barrier = threading.Barrier(4)
+        results = []
+
+        def first_call():
+            barrier.wait()
+            results.append(once())
+
+        workers = [threading.Thread(target=first_call) for _ in range(4)]
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+        assert len(calls) == 1 and len({id(r) for r in results}) == 1 and once() is results[0]
+    finally:
+        _DEFINERS.remove(once)  # not a module of the package: load_all_kernels must not load it

@@ -6,14 +6,20 @@ A memory-bound kernel (the element kernels) gains less from a second thread than
 one, and a part of a fraction of a millisecond can take less time than waking a pool thread:
 `parallel_map` keeps the calling thread busy, so that a pool thread that wakes late does not cost
 its part, and one garment's launches are not split at all.
+
+A batch of garments on several bodies can also be split whole between threads
+(`balanced_groups`, `single_torch_thread`): each thread drapes its own group from posing to
+metrics, its torch ops inline, so that the many small ops of a drape run side by side instead
+of one after the other on torch's shared pool.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
@@ -21,6 +27,7 @@ import torch
 from torch import Tensor
 
 from physdrape.tensor_memo import TensorMemo
+from physdrape.warp_runtime import load_all_kernels
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -86,10 +93,15 @@ def parallel_map(fn: Callable[[T], R], items: Sequence[T], purpose: str, workers
     thread returns once every item is done: a pool thread that the OS wakes late (milliseconds
     on a busy machine, longer than a kernel's part) finds nothing left rather than holding the
     others up. The first exception raised by fn is raised here, after every item has run.
+
+    The package's Warp kernels are loaded on the CPU before the threads start
+    (`warp_runtime.load_all_kernels`: two threads' first launches into a module not loaded yet
+    can crash the process).
     """
     workers = len(items) if workers is None else min(workers, len(items))
     if workers < 2:
         return [fn(item) for item in items]
+    load_all_kernels("cpu")
     results: list = [None] * len(items)
     errors: list[BaseException] = []
     claims = itertools.count()  # next() of a count is atomic under the GIL
@@ -121,3 +133,40 @@ def parallel_map(fn: Callable[[T], R], items: Sequence[T], purpose: str, workers
 def run_parts(launch: Callable[[int, int], None], ranges: list[tuple[int, int]], purpose: str) -> None:
     """launch(lo, hi) for every range, in parallel where there are several (`parallel_map`)."""
     parallel_map(lambda bounds: launch(*bounds), ranges, purpose)
+
+
+def balanced_groups(keys: Sequence[object], weights: Sequence[float], parts: int) -> list[list[int]]:
+    """The indices of items split into at most `parts` groups of nearly equal total weight, the
+    items of one key always in one group (`keys` hashable; items that share a key share state,
+    e.g. the jobs of one posed body share its surface, and must not run on two threads at once).
+
+    Keys go heaviest first to the lightest group so far; each group lists its items in order, and
+    the groups are ordered by their first item. Empty groups are dropped (fewer keys than parts).
+    """
+    if parts < 1:
+        raise ValueError(f"need at least one part, got {parts}")
+    if len(keys) != len(weights):
+        raise ValueError(f"{len(keys)} keys but {len(weights)} weights")
+    members: dict[object, list[int]] = {}
+    for i, key in enumerate(keys):
+        members.setdefault(key, []).append(i)
+    groups: list[list[int]] = [[] for _ in range(min(parts, len(members)))]
+    load = [0.0] * len(groups)
+    for items in sorted(members.values(), key=lambda m: (-sum(weights[i] for i in m), m[0])):
+        lightest = min(range(len(groups)), key=lambda g: (load[g], g))
+        groups[lightest].extend(items)
+        load[lightest] += sum(weights[i] for i in items)
+    return sorted((sorted(g) for g in groups if g), key=lambda g: g[0])
+
+
+@contextlib.contextmanager
+def single_torch_thread() -> Iterator[None]:
+    """torch's intra-op threads set to 1 inside the block (restored after it): for work that is
+    itself split between threads, each of which should run its torch ops inline instead of
+    sharing (and oversubscribing) torch's one pool. The setting is process-wide."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

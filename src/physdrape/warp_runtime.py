@@ -1,16 +1,69 @@
 """The one place PhysDrape starts NVIDIA Warp (used by the body-surface queries, the solver's
 preconditioner blocks, the garment intersection tests, and Anny): initialised once, without its
-banner on stdout, where the CLI prints JSON; and the stream Warp work on a torch device runs on."""
+banner on stdout, where the CLI prints JSON; the stream Warp work on a torch device runs on; and
+`defined_once`, the cache of the functions that define a module's kernels, with
+`load_all_kernels` for work about to run on several threads."""
 
 from __future__ import annotations
 
 import contextlib
 import functools
+import threading
+from collections.abc import Callable
+from typing import TypeVar
 
 import torch
 
+R = TypeVar("R")
 
-@functools.cache
+_DEFINING = threading.RLock()
+_DEFINERS: list[Callable[[], object]] = []  # every `defined_once` function, in import order
+_LOADED: set[str] = set()  # the devices `load_all_kernels` has loaded them on
+
+
+def _once(make: Callable[[], R]) -> Callable[[], R]:
+    """make() run once per process, its result cached, under one lock (reentrant: a definition
+    may ask for another's kernels)."""
+    done: list[R] = []
+
+    @functools.wraps(make)
+    def once() -> R:
+        if not done:
+            with _DEFINING:
+                if not done:
+                    done.append(make())
+        return done[0]
+
+    return once
+
+
+def defined_once(define: Callable[[], R]) -> Callable[[], R]:
+    """`define` (no arguments: it defines the Warp kernels of the Python module it lives in and
+    returns them) run once per process, its result cached: a second definition of a module's
+    kernels, on another thread, would make Warp rebuild and reload that module while a kernel of
+    it runs. Registered for `load_all_kernels`."""
+    once = _once(define)
+    _DEFINERS.append(once)
+    return once
+
+
+def load_all_kernels(device: str = "cpu") -> None:
+    """Define the kernels of every imported `defined_once` function and load their modules on
+    `device`, once per process. Warp loads a module on its first launch, and two threads that
+    both launch a kernel of a module not loaded yet can crash the process (a segmentation fault
+    on the CPU, seen with two threads' first strain-force launches; none once the module was
+    loaded beforehand): work about to be split between threads calls this first."""
+    if device in _LOADED:
+        return
+    wp = warp()
+    with _DEFINING:
+        for once in list(_DEFINERS):
+            once()
+            wp.load_module(once.__module__, device=device)
+        _LOADED.add(device)
+
+
+@_once
 def warp():
     """The initialised `warp` module (its log level raised to warnings first)."""
     import warp as wp  # noqa: PLC0415  (heavy import, only needed for queries)

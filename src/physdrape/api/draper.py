@@ -12,6 +12,7 @@ by the oracle on the CPU, and results are numpy arrays whatever the device.
 
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from collections import OrderedDict
@@ -25,6 +26,8 @@ from torch import Tensor
 
 from physdrape import checkpoint as ckpt
 from physdrape.api import placement, sequences, specs
+from physdrape.api.batch_threads import drape_groups, thread_groups
+from physdrape.api.convergence import solver_convergence
 from physdrape.api.specs import BodyPose
 from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
 from physdrape.api.wear import Wear, Wearing
@@ -32,7 +35,7 @@ from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
 from physdrape.geometry.proximity import BodySurface
-from physdrape.physics import Cloth, energy_terms, internal_forces, relax
+from physdrape.physics import Cloth, internal_forces, relax
 from physdrape.physics.metrics import drape_metrics, faces_inside
 from physdrape.pipeline import (
     DEFAULT_DTYPE,
@@ -144,6 +147,7 @@ class Draper:
         self._named_poses: dict[str, list[BodyPose]] = {}
         #: the last few posed body batches (their surfaces built on first use), by rig, shapes and poses
         self._posed: OrderedDict[tuple, PosedBodies] = OrderedDict()
+        self._posed_lock = threading.Lock()  # a batch split between threads poses its groups side by side
 
     # ------------------------------------------------------------------ inputs
     def body(self, rig: str = "anny"):
@@ -327,7 +331,7 @@ class Draper:
                 chunk = cold[c:c + batch_size]
                 for rig in dict.fromkeys(jobs[i].pose.rig for i in chunk):  # one rig (topology) per model call
                     part = [i for i in chunk if jobs[i].pose.rig == rig]
-                    res, warm = self._drape_batch([jobs[i] for i in part], shape_t, **options)
+                    res, warm = self._drape_part([jobs[i] for i in part], shape_t, **options)
                     results.update(zip(part, res))
                     carried.update((i, w) for i, w in zip(part, warm) if w is not None)
                     if bar is not None:
@@ -349,16 +353,19 @@ class Draper:
         """The bodies of `rig` in `shapes` and `poses`, posed and (with `check_pose`) checked for arms
         through the torso once; the last `POSED_CACHE_SIZE` batches are kept with their surfaces."""
         key = (rig, self.check_pose, shapes.shape, poses.shape, shapes.cpu().numpy().tobytes(), poses.cpu().numpy().tobytes())
-        if key in self._posed:
-            self._posed.move_to_end(key)
-            return self._posed[key]
+        with self._posed_lock:
+            if key in self._posed:
+                self._posed.move_to_end(key)
+                return self._posed[key]
         body = self.body(rig)
         state = body(shapes, poses)
         if self.check_pose and checks_arms(rig):
             self._refuse_penetrating_poses(state, body, labels)
-        posed = self._posed[key] = PosedBodies(state)
-        while len(self._posed) > POSED_CACHE_SIZE:
-            self._posed.popitem(last=False)
+        posed = PosedBodies(state)
+        with self._posed_lock:
+            self._posed[key] = posed
+            while len(self._posed) > POSED_CACHE_SIZE:
+                self._posed.popitem(last=False)
         return posed
 
     def _refuse_penetrating_poses(self, state: BodyState, body, labels: list[str]) -> None:
@@ -371,6 +378,18 @@ class Draper:
                 f"pose drives the arms through the torso: {'; '.join(bad)}. PhysDrape drapes static poses with "
                 "the arms clear of the body: choose another pose or frame (or Draper(check_pose=False) to drape anyway)"
             )
+
+    def _drape_part(self, jobs: list[_Job], shape: Tensor, **options) -> tuple[list[DrapeResult], list[_Warm | None]]:
+        """`_drape_batch` of one rig's jobs, split between CPU threads by pose (`api.batch_threads`)
+        where torch has several."""
+        groups = thread_groups(jobs, self.device, refine=options["refine"])
+        if len(groups) < 2:
+            return self._drape_batch(jobs, shape, **options)
+        pipeline = self.pipeline(jobs[0].pose.rig)
+        for template in {job.template.key: job.template for job in jobs}.values():  # first use outside the threads
+            pipeline.transfer(template)
+            pipeline.garment(template)
+        return drape_groups(lambda part: self._drape_batch(part, shape, **options), jobs, groups)
 
     @torch.no_grad()
     def _drape_batch(self, jobs: list[_Job], shape: Tensor, *, steps: int, refine: bool, keep_trace: bool,
@@ -410,7 +429,7 @@ class Draper:
         out = run(inp, steps=steps, keep_trace=keep_trace)
         x = out.x
         t3 = time.perf_counter()
-        convergence = self._convergence(out, inp, len(jobs)) if keep_trace else [{} for _ in jobs]
+        convergence = solver_convergence(out, inp, len(jobs)) if keep_trace else [{} for _ in jobs]
         t3b = time.perf_counter()
         if refine:  # the oracle runs on the CPU (scipy's sparse factorisations), where the bodies are posed
             c64 = Cloth.build(inp.garments.to(torch.float64, device="cpu"), [job.material for job in jobs])
@@ -433,19 +452,6 @@ class Draper:
         nxt = [None if t is None else _Warm(xs[k].to(device=t.device, dtype=POSE_DTYPE), t)
                for k, t in enumerate(following)]
         return results, nxt
-
-    @staticmethod
-    def _convergence(out, inp, count: int) -> list[dict[str, list[float]]]:
-        """Per garment, the energy [J] and total force [N] after each solver step (t = 0 … T)."""
-        convergence: list[dict[str, list[float]]] = [{"energy": [], "force": []} for _ in range(count)]
-        for xt in (out.x_gnn, *out.trace):
-            e = sum(energy_terms(xt, inp.cloth).values())
-            f = (internal_forces(xt, inp.cloth) + out.f_hat).norm(dim=-1)
-            fsum = f.new_zeros(count).index_add_(0, inp.garments.vert_garment, f)
-            for k in range(count):
-                convergence[k]["energy"].append(float(e[k]))
-                convergence[k]["force"].append(float(fsum[k]))
-        return convergence
 
     def _results(self, jobs: list[_Job], body_of: list[int], inp, x: Tensor, state: BodyState, convergence,
                  warm) -> list[DrapeResult]:

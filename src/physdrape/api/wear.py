@@ -6,6 +6,7 @@ shape and extra terms."""
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,6 +79,7 @@ class Wearing:
         self.by_binding = by_binding  # False on SMPL bodies: .mhclo bindings are to Anny
         self.cache_size = cache_size
         self._rests: dict[tuple, np.ndarray] = {}
+        self._lock = threading.Lock()  # a batch split between threads shares the cache
 
     def job(self, template: Template, body: int, material, x_init: Tensor | None, wear: Wear, state,
             shape: Tensor, pipeline: DrapePipeline) -> Job:
@@ -98,9 +100,12 @@ class Wearing:
             return None
         by_binding = template.sizer is not None and self.by_binding
         key = (template.key, by_binding, tuple(shape.reshape(-1).tolist()))
-        if key not in self._rests:
-            if len(self._rests) >= self.cache_size:  # a manifest may drape thousands of shapes
-                del self._rests[next(iter(self._rests))]
-            self._rests[key] = (template.sizer.rest(shape) if by_binding
-                                else pipeline.fitted_rest(template, state, index))
-        return self._rests[key]
+        with self._lock:
+            rest = self._rests.get(key)
+        if rest is None:
+            rest = template.sizer.rest(shape) if by_binding else pipeline.fitted_rest(template, state, index)
+            with self._lock:
+                if len(self._rests) >= self.cache_size:  # a manifest may drape thousands of shapes
+                    del self._rests[next(iter(self._rests))]
+                self._rests[key] = rest
+        return rest

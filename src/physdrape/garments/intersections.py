@@ -11,16 +11,16 @@ the garment tools need, on Warp's triangle BVH (CPU, float32: exact to ~1e-6 m):
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
+
+from physdrape.warp_runtime import defined_once
 
 __all__ = ["self_intersecting_faces", "self_intersecting_pairs", "ray_hit_distances"]
 
 _DEVICE = "cpu"
 
 
-@functools.cache
+@defined_once
 def _warp():
     """Import warp and define the kernels (first call only; Warp caches the binaries on disk)."""
     from physdrape.warp_runtime import warp

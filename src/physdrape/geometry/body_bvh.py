@@ -16,7 +16,6 @@ write its inputs and read its outputs.
 from __future__ import annotations
 
 import collections
-import functools
 import itertools
 
 import numpy as np
@@ -24,7 +23,7 @@ import torch
 from torch import Tensor
 
 from physdrape.threads import parallel_map, run_parts
-from physdrape.warp_runtime import torch_stream, warp
+from physdrape.warp_runtime import defined_once, torch_stream, warp
 
 __all__ = ["BodyBVH"]
 
@@ -34,7 +33,7 @@ _MIN_POINTS_PER_THREAD = 1024
 _RECENT_QUERIES = 4
 
 
-@functools.cache
+@defined_once
 def _query_kernels():
     """Import warp and define the query kernels (first call only)."""
     wp = warp()

@@ -22,17 +22,16 @@ Numerics: float64 whatever the inputs' dtype (they are converted in, the results
 """
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
-import functools
 
 import torch
 from torch import Tensor
 
-from physdrape.warp_runtime import torch_stream, warp
+from physdrape.warp_runtime import defined_once, torch_stream, warp
 
 __all__ = ["closest_point_on_indexed_triangles", "closest_point_on_triangle", "feature_pseudo_normals"]
 
 
-@functools.cache
+@defined_once
 def _kernels() -> dict:
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()

@@ -273,8 +273,10 @@ def _coarse_graphs(garment: Garment, levels: int) -> list[np.ndarray]:
     """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across batches)."""
     edges = garment.edges.cpu().numpy()
     key = (hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii"), levels)
-    if key not in _COARSE_CACHE:
+    graphs = _COARSE_CACHE.get(key)
+    if graphs is None:  # held locally: another thread's clear() cannot take it away before the return
+        graphs = topology.coarse_graphs(edges, garment.num_verts, levels)
         if len(_COARSE_CACHE) >= _COARSE_CACHE_SIZE:
             _COARSE_CACHE.clear()
-        _COARSE_CACHE[key] = topology.coarse_graphs(edges, garment.num_verts, levels)
-    return _COARSE_CACHE[key]
+        _COARSE_CACHE[key] = graphs
+    return graphs

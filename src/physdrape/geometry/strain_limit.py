@@ -19,13 +19,11 @@ need where the garment can ride up.
 
 from __future__ import annotations
 
-import functools
-
 import torch
 from torch import Tensor
 
 from physdrape.geometry.proximity import BodySurface
-from physdrape.warp_runtime import torch_stream, warp
+from physdrape.warp_runtime import defined_once, torch_stream, warp
 
 __all__ = ["limit_edge_stretch", "max_edge_stretch"]
 
@@ -146,7 +144,7 @@ def limit_edge_stretch(
     return x + (out - x).detach() if x.requires_grad else out
 
 
-@functools.cache
+@defined_once
 def _kernels():
     """The sweep's Warp kernels (defined on first use; Warp caches the binaries on disk).
 

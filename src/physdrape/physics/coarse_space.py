@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import collections
 import hashlib
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -144,25 +145,30 @@ class _GarmentGalerkin:
 _GALERKIN: collections.OrderedDict[tuple, _GarmentGalerkin] = collections.OrderedDict()
 _GALERKIN_SIZE = 128
 
+#: Guards `_GALERKIN` and `_STRUCTURES` (batches draped on parallel threads share them); held
+#: while a missing entry is built, so that each is built once.
+_CACHE_LOCK = threading.RLock()
+
 
 def _garment_galerkin(faces: np.ndarray, num_verts: int, levels: int, smoothing: int) -> _GarmentGalerkin:
     """The coarse space of one garment (local vertex ids), cached by topology."""
     key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], num_verts, levels, smoothing)
-    if key not in _GALERKIN:
-        prolong = _garment_prolongation(faces, num_verts, levels, smoothing)
-        pairs, where = _vertex_pairs(faces, num_verts)
-        itself = np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))
-        operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
-        patches = prolong.shape[1]
-        row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
-        col = 3 * (blocks % patches)[:, None] + np.arange(3)
-        destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
-        _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, operator,
-                                          destination)
-        while len(_GALERKIN) > _GALERKIN_SIZE:
-            _GALERKIN.popitem(last=False)
-    _GALERKIN.move_to_end(key)
-    return _GALERKIN[key]
+    with _CACHE_LOCK:
+        if key not in _GALERKIN:
+            prolong = _garment_prolongation(faces, num_verts, levels, smoothing)
+            pairs, where = _vertex_pairs(faces, num_verts)
+            itself = np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))
+            operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
+            patches = prolong.shape[1]
+            row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
+            col = 3 * (blocks % patches)[:, None] + np.arange(3)
+            destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
+            _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, operator,
+                                              destination)
+            while len(_GALERKIN) > _GALERKIN_SIZE:
+                _GALERKIN.popitem(last=False)
+        _GALERKIN.move_to_end(key)
+        return _GALERKIN[key]
 
 
 def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
@@ -274,12 +280,14 @@ class CoarseSpace:
         face_counts = tuple(torch.bincount(cloth.face_garment, minlength=cloth.num_garments).tolist())
         key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], vert_counts, face_counts,
                levels, smoothing, str(cloth.device))
-        if key not in _STRUCTURES:
-            _STRUCTURES[key] = _BatchStructure.build(faces, vert_counts, face_counts, levels, smoothing, cloth.device)
-            while len(_STRUCTURES) > _STRUCTURES_SIZE:
-                _STRUCTURES.popitem(last=False)
-        _STRUCTURES.move_to_end(key)
-        self._s = _STRUCTURES[key]
+        with _CACHE_LOCK:
+            if key not in _STRUCTURES:
+                _STRUCTURES[key] = _BatchStructure.build(faces, vert_counts, face_counts, levels, smoothing,
+                                                         cloth.device)
+                while len(_STRUCTURES) > _STRUCTURES_SIZE:
+                    _STRUCTURES.popitem(last=False)
+            _STRUCTURES.move_to_end(key)
+            self._s = _STRUCTURES[key]
         self.num_patches = self._s.num_patches
         self._factors: list[Tensor] | None = None
 

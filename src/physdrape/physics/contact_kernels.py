@@ -16,12 +16,11 @@ equally by its corners (∂s/∂x_a = I/3).
 """
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
-import functools
 
-from physdrape.warp_runtime import warp
+from physdrape.warp_runtime import defined_once, warp
 
 
-@functools.cache
+@defined_once
 def kernels() -> dict:
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()

@@ -27,7 +27,6 @@ may carry leading batch dimensions, x (..., V, 3); the kernels launch over (batc
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects, and
 # a function that names `wp` only in its annotations cannot resolve them from a string.
 import collections
-import functools
 import math
 import threading
 import weakref
@@ -37,12 +36,12 @@ from torch import Tensor
 
 from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
-from physdrape.warp_runtime import torch_stream, warp
+from physdrape.warp_runtime import defined_once, torch_stream, warp
 
 __all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "run_kernel", "strain_energy_per_face", "strain_force"]
 
 
-@functools.cache
+@defined_once
 def _kernels() -> dict:
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()

@@ -27,20 +27,18 @@ is differentiated: the solver's preconditioner is a constant of each step.
 
 from __future__ import annotations
 
-import functools
-
 import torch
 from torch import Tensor
 
 from physdrape.physics import element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
-from physdrape.warp_runtime import torch_stream, warp
+from physdrape.warp_runtime import defined_once, torch_stream, warp
 
 __all__ = ["pair_blocks", "vertex_blocks"]
 
 
-@functools.cache
+@defined_once
 def _kernels():
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()
