@@ -20,7 +20,9 @@ size in a fresh subprocess of this script (`--worker`), so that its peak memory
   and 2), the thread counts alternating call by call in one process per batch size (the
   machine's drift over a run, which on a shared machine exceeds the effect of a second thread,
   then weighs on each count alike): garments per second and ms per garment (median of
-  `--repeats` calls per count after a warm-up round), and the ratio of 2 threads over 1. `--batch-poses fresh` (the default) drapes n new poses each
+  `--repeats` calls per count after a warm-up round), and the ratio of 2 threads over 1. On 2
+  threads a batch of several poses drapes as two groups side by side (`api.batch_threads`); its
+  phases are then the first group's, over n. `--batch-poses fresh` (the default) drapes n new poses each
   call (drawn beforehand with the API's `random:SEED` sampler and passed as arrays, so the
   posing, arm check and body surfaces are paid as a dataset pays them); `same` repeats one set of n
   poses (posed bodies kept).
@@ -338,7 +340,8 @@ def write_markdown(path: Path, header: dict, args, sizes: list[dict], batches: l
              (f"## Throughput against batch size and threads (the bundled T-shirt on n poses, "
              f"{args.batch_poses} poses every call)"), "",
              ("garments / s = n / (wall time of one `Draper.drape` call of n garments, batch_size = n); the "
-             "phases per garment are `DrapeResult.timings` over n; the peak RSS is that of the batch size's "
+             "phases per garment are `DrapeResult.timings` over n (on 2 threads, where the batch drapes as two "
+             "groups side by side, the first group's timings); the peak RSS is that of the batch size's "
              "process, over all its thread counts."), "", *batch_table(batches), ""]
     path.write_text("\n".join(lines))
 
