@@ -50,6 +50,12 @@ def one_thread():
     torch.set_num_threads(before)
 
 
+@pytest.fixture
+def threads():
+    """Set torch's thread count inside a test (`one_thread` restores it after)."""
+    return torch.set_num_threads
+
+
 @pytest.fixture(scope="session")
 def tiny_split(tmp_path_factory) -> str:
     """A garment split of 2 training and 2 test garments (seconds to generate), so that no test

@@ -3,21 +3,12 @@ in parallel, and they are the ones a single thread makes, bit for bit."""
 
 from __future__ import annotations
 
-import pytest
 import torch
 
 from physdrape.api.specs import garment_template
 from physdrape.body.pool import BodyPool
 from physdrape.physics import Material
 from physdrape.pipeline import POSE_DTYPE, DrapePipeline, Job, PosedBodies
-
-
-@pytest.fixture
-def threads():
-    """Run the test body with torch's thread count set, restored after."""
-    before = torch.get_num_threads()
-    yield torch.set_num_threads
-    torch.set_num_threads(before)
 
 
 def test_parallel_x_inits_equal_one_threads(anny_body, threads):

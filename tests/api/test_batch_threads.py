@@ -5,18 +5,9 @@ bit."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import torch
 
 from physdrape.api.batch_threads import thread_groups
-
-
-@pytest.fixture
-def threads():
-    """Run the test body with torch's thread count set, restored after."""
-    before = torch.get_num_threads()
-    yield torch.set_num_threads
-    torch.set_num_threads(before)
 
 
 def test_split_batch_equals_its_groups_draped_alone(draper, threads):

@@ -11,30 +11,19 @@ intra-op threads only add synchronisation, which costs more than the work on a b
 
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
 import torch
 
 from physdrape.geometry import garment as _garment
 from physdrape.geometry.proximity import BodySurface
+from physdrape.threads import single_torch_thread
 
 __all__ = ["vertex_normals", "BodyDistance"]
 
 
-@contextlib.contextmanager
-def _one_torch_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
-
-
 def vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit area-weighted vertex normals, shape (V, 3) float64 (zero for unused vertices)."""
-    with _one_torch_thread():
+    with single_torch_thread():
         x = torch.from_numpy(np.asarray(verts, np.float64))
         return _garment.vertex_normals(x, torch.from_numpy(np.asarray(faces, np.int64))).numpy()
 
@@ -48,7 +37,7 @@ class BodyDistance:
     """
 
     def __init__(self, verts: np.ndarray, faces: np.ndarray):
-        with _one_torch_thread():
+        with single_torch_thread():
             self.surface = BodySurface(torch.from_numpy(np.array(verts, np.float64)),
                                        torch.from_numpy(np.asarray(faces, np.int64)))
 
@@ -63,6 +52,6 @@ class BodyDistance:
         x = np.array(points, np.float64).reshape(-1, 3)
         if len(x) == 0:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
-        with _one_torch_thread(), torch.no_grad():
+        with single_torch_thread(), torch.no_grad():
             q = self.surface.query(torch.from_numpy(x))
             return q.signed_distance.numpy(), q.closest.numpy(), q.normal.numpy()
