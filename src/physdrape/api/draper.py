@@ -262,7 +262,9 @@ class Draper:
             refine: polish each drape with the physics oracle (`physics.relax`, projected Newton,
                 penalty contact; at most `refine_iters` iterations / `refine_time_s` seconds per batch).
             keep_trace: record the solver's energy and force per step (`DrapeResult.convergence`).
-            batch_size: garments per model call; progress: show a tqdm bar over the garments.
+            batch_size: garments per model call (on the CPU with several torch threads, a batch on
+                several poses drapes as groups side by side, one per thread: `api.batch_threads`);
+                progress: show a tqdm bar over the garments.
             units: the unit of garment files (.obj/.ply) and (verts, faces) given here: "m" (the
                 default), "dm", "cm" or "mm"; they are converted to metres (the bundled and
                 generated garments and .mhclo are placed in metres already). Results are in metres.

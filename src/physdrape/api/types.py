@@ -67,8 +67,9 @@ class DrapeResult:
         material: the fabric draped; pose: a label of the body pose.
         metrics: E_strain, E_bend [J, default material], B2G [%], close [%], residual force [N]
             and relative residual [per vertex weight] (see `physdrape.physics.metrics`).
-        timings: wall seconds of the batch this garment was draped in, per phase, and
-            ``batch_size``; ``per_garment_s`` = total / batch size.
+        timings: wall seconds of the batch this garment was draped in (of its thread's group
+            where a batch was split between threads), per phase, and ``batch_size``;
+            ``per_garment_s`` = total / batch size.
         vertex_residual: ‖F_int‖ / (m_i g) per vertex at X* (V,) (free-hanging parts near 0).
         inside_faces: faces whose centroid is inside the body, (F,) bool (the B2G faces).
         convergence: per solver step t = 0..T: {"energy": E_strain+E_bend+E_grav [J],
