@@ -18,7 +18,7 @@ R = TypeVar("R")
 
 _DEFINING = threading.RLock()
 _DEFINERS: list[Callable[[], object]] = []  # every `defined_once` function, in import order
-_LOADED: set[str] = set()  # the devices `load_all_kernels` has loaded them on
+_LOADED: set[tuple[str, str]] = set()  # (module, device) pairs `load_all_kernels` has loaded
 
 
 def _once(make: Callable[[], R]) -> Callable[[], R]:
@@ -49,18 +49,19 @@ def defined_once(define: Callable[[], R]) -> Callable[[], R]:
 
 def load_all_kernels(device: str = "cpu") -> None:
     """Define the kernels of every imported `defined_once` function and load their modules on
-    `device`, once per process. Warp loads a module on its first launch, and two threads that
-    both launch a kernel of a module not loaded yet can crash the process (a segmentation fault
-    on the CPU, seen with two threads' first strain-force launches; none once the module was
-    loaded beforehand): work about to be split between threads calls this first."""
-    if device in _LOADED:
+    `device`, each once per process. Warp loads a module on its first launch, and two threads
+    that both launch a kernel of a module not loaded yet can crash the process (a segmentation
+    fault on the CPU, seen with two threads' first strain-force launches; none once the module
+    was loaded beforehand): work about to be split between threads calls this first."""
+    if all((once.__module__, device) in _LOADED for once in _DEFINERS):
         return
     wp = warp()
     with _DEFINING:
         for once in list(_DEFINERS):
-            once()
-            wp.load_module(once.__module__, device=device)
-        _LOADED.add(device)
+            if (once.__module__, device) not in _LOADED:
+                once()
+                wp.load_module(once.__module__, device=device)
+                _LOADED.add((once.__module__, device))
 
 
 @_once
