@@ -57,7 +57,7 @@ def load_all_kernels(device: str = "cpu") -> None:
         return
     wp = warp()
     with _DEFINING:
-        for once in list(_DEFINERS):
+        for once in _DEFINERS:
             if (once.__module__, device) not in _LOADED:
                 once()
                 wp.load_module(once.__module__, device=device)
