@@ -357,6 +357,21 @@ def test_gradients_wrt_body_verts_match_finite_differences():
                                     eps=1e-6, atol=1e-6)
 
 
+def test_a_surface_reads_its_current_vertices_after_update_and_in_a_graph():
+    verts, faces = bumpy_blob()
+    x = sample_points(verts, faces, 200, 50, seed=8)
+    surface = BodySurface(verts, faces)
+    surface.query(x)  # keeps the vertices in the kernels' types
+    surface.update(verts * 1.01)
+    assert torch.equal(surface.query(x).closest, BodySurface(verts * 1.01, faces).query(x).closest)
+    vr = verts.clone().requires_grad_(True)
+    in_graph = BodySurface(vr, faces)
+    in_graph.query(x).signed_distance.sum().backward()
+    first, vr.grad = vr.grad.clone(), None
+    in_graph.query(x).signed_distance.sum().backward()  # a second query still reaches the vertices
+    assert first.abs().sum() > 0 and torch.equal(vr.grad, first)
+
+
 @pytest.mark.parametrize("name", list(MESHES))
 def test_handler_step_clears_margin(name):
     """x* = x + relu(eps - d) n puts every point at d >= eps in one step (delta = 1).

@@ -28,7 +28,8 @@ from torch import Tensor
 
 from physdrape.warp_runtime import defined_once, torch_stream, warp
 
-__all__ = ["closest_point_on_indexed_triangles", "closest_point_on_triangle", "feature_pseudo_normals"]
+__all__ = ["closest_point_float64", "closest_point_on_indexed_triangles", "closest_point_on_triangle",
+           "feature_pseudo_normals"]
 
 
 @defined_once
@@ -189,9 +190,16 @@ def closest_point_on_indexed_triangles(points: Tensor, verts: Tensor, corners: T
     """
     if points.dtype != verts.dtype:
         raise TypeError(f"points are {points.dtype} but verts are {verts.dtype}; convert one of them explicitly")
-    p, bary = _ClosestPoint.apply(points.to(torch.float64).contiguous(), verts.to(torch.float64).contiguous(),
-                                  corners.to(torch.int32).contiguous())
+    p, bary = closest_point_float64(points.to(torch.float64).contiguous(), verts.to(torch.float64).contiguous(),
+                                    corners.to(torch.int32).contiguous())
     return p.to(points.dtype), bary.to(points.dtype)
+
+
+def closest_point_float64(points: Tensor, verts: Tensor, corners: Tensor) -> tuple[Tensor, Tensor]:
+    """`closest_point_on_indexed_triangles` on inputs already in the kernel's types, results in
+    float64: points (M, 3) and verts (N, 3) float64 contiguous, corners (M, 3) int32 contiguous
+    (for a caller that holds them so, and converts nothing per call)."""
+    return _ClosestPoint.apply(points, verts, corners)
 
 
 def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:

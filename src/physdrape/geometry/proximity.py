@@ -58,10 +58,7 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.body_bvh import BodyBVH
-from physdrape.geometry.closest_point import (
-    closest_point_on_indexed_triangles,
-    feature_pseudo_normals,
-)
+from physdrape.geometry.closest_point import closest_point_float64, feature_pseudo_normals
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
@@ -184,6 +181,7 @@ class BodySurface:
         self.winding_accuracy = float(winding_accuracy)
         verts = check_verts(verts)
         self.faces = check_faces(faces, verts.shape[1], verts.device)
+        self._faces32 = self.faces.to(torch.int32).contiguous()  # what the kernels read
         edge_nbr, border = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
         self._edge_nbr = torch.from_numpy(edge_nbr).to(verts.device)
         self._border = torch.from_numpy(border).to(verts.device)
@@ -224,8 +222,9 @@ class BodySurface:
         one = object.__new__(BodySurface)
         one.sign_method, one.search_threads = self.sign_method, self.search_threads
         one.near_tol, one.winding_accuracy = self.near_tol, self.winding_accuracy
-        one.faces, one._edge_nbr, one._border = self.faces, self._edge_nbr, self._border
+        one.faces, one._faces32, one._edge_nbr, one._border = self.faces, self._faces32, self._edge_nbr, self._border
         one.verts = self.verts[index:index + 1]
+        one._verts64 = None
         one._vertex_normals = None if self._vertex_normals is None else self._vertex_normals[index:index + 1]
         one._face_normals = None if self._face_normals is None else tuple(n[index:index + 1] for n in self._face_normals)
         one._doubtful = None if self._doubtful is None else self._doubtful[index:index + 1]
@@ -237,6 +236,7 @@ class BodySurface:
     def _build(self, verts: Tensor) -> None:
         """(Re)build one Warp BVH per body."""
         self.verts = verts
+        self._verts64 = None
         self._vertex_normals = None
         self._face_normals = None
         self._doubtful = None
@@ -258,6 +258,7 @@ class BodySurface:
             self._build(verts)
             return
         self.verts = verts
+        self._verts64 = None
         self._vertex_normals = None
         self._face_normals = None
         self._doubtful = None
@@ -360,17 +361,27 @@ class BodySurface:
                 self._face_normals = (faces, edges, self._vertex_pseudo_normals().double().contiguous())
         return self._face_normals
 
-    def _corner_rows(self, body: Tensor, face: Tensor) -> Tensor:
+    def _flat_verts64(self) -> Tensor:
+        """All bodies' vertices flattened to (B·Vb, 3) float64, what the closest-point kernel reads:
+        a copy kept until `update`, or, while the vertices take part in a graph, made per call
+        (differentiable)."""
+        if self.verts.requires_grad and torch.is_grad_enabled():
+            return self.verts.reshape(-1, 3).to(torch.float64).contiguous()
+        if self._verts64 is None:
+            self._verts64 = self.verts.detach().reshape(-1, 3).to(torch.float64).contiguous()
+        return self._verts64
+
+    def _corner_rows(self, body32: Tensor, face: Tensor) -> Tensor:
         """Rows of the corners of each point's face in the bodies' vertex table flattened to
-        (B·Vb, 3), shape (M, 3)."""
-        return body[:, None] * self.num_verts + self.faces[face]
+        (B·Vb, 3), shape (M, 3) int32 (body32: each point's body, int32)."""
+        return (body32[:, None] * self.num_verts + self._faces32[face]).contiguous()
 
     @torch.no_grad()
     def _pseudo_normals(self, body: Tensor, face: Tensor, bary: Tensor) -> Tensor:
         """Angle-weighted pseudo-normal of the closest feature (face, edge or vertex), shape (M, 3),
         read off the barycentrics (`geometry.closest_point.feature_pseudo_normals`). Not
         differentiated (used for the sign, and as the direction of on-surface points)."""
-        return feature_pseudo_normals(bary, body, face, self.faces, *self._feature_normals()).to(bary.dtype)
+        return feature_pseudo_normals(bary, body, face, self._faces32, *self._feature_normals()).to(bary.dtype)
 
     def query(self, points: Tensor, *, body_index: Tensor | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
@@ -391,11 +402,13 @@ class BodySurface:
             face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
                                            threads=self.search_threads, reuse=True)[0]
 
-        p, bary = closest_point_on_indexed_triangles(x, self.verts.reshape(-1, 3), self._corner_rows(body, face))
+        p, bary = closest_point_float64(x.to(torch.float64).contiguous(), self._flat_verts64(),
+                                        self._corner_rows(body32, face))
+        p, bary = p.to(x.dtype), bary.to(x.dtype)
         r = x - p
         dist = r.norm(dim=-1)
         near = dist <= self.near_tol
-        n_pseudo = self._pseudo_normals(body, face, bary.detach())
+        n_pseudo = self._pseudo_normals(body32, face, bary.detach())
         inside = (r.detach() * n_pseudo).sum(-1) < 0  # the pseudo-normal sign
         if self.sign_method is SignMethod.WINDING_NUMBER:
             with torch.no_grad():
