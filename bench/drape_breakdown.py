@@ -1,0 +1,190 @@
+"""Where a warm drape's time goes: the phases of `Draper.drape` of the default T-shirt, timed inside.
+
+    .venv/bin/python bench/drape_breakdown.py [--repeats 9] [--out results/drape_breakdown]
+
+The bundled model at T = 15 on one torch thread, as `bench/bench_drape.py` times it end to end:
+the same pose again (the body posed and its surface built before), and a new pose per call (drawn
+by the seeded sampler beforehand and passed as an array). This script wraps the methods that make
+up a drape with timers (the product code is not changed) and reports per drape the median time
+spent in each, with how often it ran:
+
+- posing the body and checking the arms against the torso, the body surface (BVH) build, X_init
+  (skinning transfer and strain limiting, the drape's `init_s`), the graph inputs and the GNN;
+- the stretching solver, and within it the body requeries, the coarse factorisations, the
+  stiffness blocks and their inverses, the forces, the contact blocks, the coarse solves and the
+  line-search potentials (the rest: the conjugation, clips and updates);
+- the collision handler and the metrics (the drape's `metrics_s`);
+- across all of them, the time inside Warp kernels (compiled code), and of that the BVH searches
+  (closest faces, winding numbers, rays): what a faster Python or torch layer cannot remove.
+
+Nested rows are part of the row above them. Writes <out>.md and <out>.json with the command, the
+commit and the load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import shlex
+import statistics
+import sys
+import time
+
+#: (label, module, class or None, attribute, indent): the timed methods, in the table's order.
+PHASES = [
+    ("posing and arm check", "physdrape.api.draper", "Draper", "_posed_bodies", 0),
+    ("body surface build", "physdrape.geometry.proximity", "BodySurface", "__init__", 0),
+    ("graph inputs", "physdrape.model.physdrape", "PhysDrape", "graph_inputs", 0),
+    ("GNN", "physdrape.model.gnn", "EncodeProcessDecode", "forward", 0),
+    ("stretching solver", "physdrape.model.stretching_solver", "StretchingSolver", "forward", 0),
+    ("body requeries", "physdrape.model.stretching_solver", "_Relaxation", "requery", 1),
+    ("coarse factorisations", "physdrape.physics.coarse_space", "CoarseSpace", "factor", 1),
+    ("stiffness blocks and inverses", "physdrape.model.stretching_solver", "StretchingSolver", "_stiffness_inverse", 1),
+    ("forces", "physdrape.model.stretching_solver", "_Relaxation", "force", 1),
+    ("contact blocks", "physdrape.model.stretching_solver", "_Relaxation", "contact_blocks", 1),
+    ("coarse solves", "physdrape.physics.coarse_space", "CoarseSpace", "solve", 1),
+    ("line-search potentials", "physdrape.model.stretching_solver", "_Relaxation", "potential", 1),
+    ("collision handler", "physdrape.model.collision_handler", "CollisionHandler", "forward", 0),
+]
+#: The Warp kernels of the body BVH searches (`geometry.body_bvh`), by their function names.
+BVH_KERNELS = ("closest_kernel", "closest_winding_kernel", "ray_kernel")
+
+
+class Timers:
+    """Accumulated seconds and calls per label while `active`."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = collections.defaultdict(float)
+        self.calls: dict[str, int] = collections.defaultdict(int)
+        self.active = False
+
+    def wrap(self, owner, attribute: str, label: str) -> None:
+        original = getattr(owner, attribute)
+
+        def timed(*args, **kwargs):
+            if not self.active:
+                return original(*args, **kwargs)
+            start = time.perf_counter()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                self.seconds[label] += time.perf_counter() - start
+                self.calls[label] += 1
+
+        setattr(owner, attribute, timed)
+
+    def wrap_warp(self) -> None:
+        """Time every Warp CPU kernel invocation (`warp._src.context.invoke`, where a kernel's
+        compiled code runs), the BVH searches apart."""
+        from warp._src import context
+
+        original = context.invoke
+
+        def timed(kernel, hooks, params, adjoint):
+            if not self.active:
+                return original(kernel, hooks, params, adjoint)
+            start = time.perf_counter()
+            try:
+                return original(kernel, hooks, params, adjoint)
+            finally:
+                spent = time.perf_counter() - start
+                self.seconds["warp kernels"] += spent
+                self.calls["warp kernels"] += 1
+                if kernel.func.__name__ in BVH_KERNELS:
+                    self.seconds["BVH searches"] += spent
+                    self.calls["BVH searches"] += 1
+
+        context.invoke = timed
+
+    def take(self) -> tuple[dict[str, float], dict[str, int]]:
+        out = dict(self.seconds), dict(self.calls)
+        self.seconds.clear()
+        self.calls.clear()
+        return out
+
+
+def measure(repeats: int) -> dict[str, list[dict]]:
+    import importlib
+
+    import torch
+
+    torch.set_num_threads(1)
+    timers = Timers()
+    for label, module, owner, attribute, _ in PHASES:
+        timers.wrap(getattr(importlib.import_module(module), owner), attribute, label)
+    timers.wrap_warp()
+    from physdrape.api import Draper
+
+    draper = Draper()
+    draper.drape("default")  # fits the skinning transfer, poses the default body
+    poses = [draper.poses(f"random:{1000 + k}")[0].pose[0] for k in range(repeats + 1)]
+    draper.drape("default", pose=poses[0])  # a first new pose outside the timing
+    out: dict[str, list[dict]] = {"same_pose": [], "new_pose": []}
+    for k in range(repeats):
+        for row in ("same_pose", "new_pose"):
+            timers.active = True
+            start = time.perf_counter()
+            [res] = draper.drape("default") if row == "same_pose" else draper.drape("default", pose=poses[k + 1])
+            wall = time.perf_counter() - start
+            timers.active = False
+            seconds, calls = timers.take()
+            seconds.update({"X_init": res.timings["init_s"], "metrics": res.timings["metrics_s"], "drape": wall})
+            out[row].append({"seconds": seconds, "calls": calls})
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=9, help="timed drapes per row (the two rows alternate)")
+    parser.add_argument("--out", default="results/drape_breakdown")
+    args = parser.parse_args()
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from report import source_lines, write_report
+
+    from physdrape.provenance import provenance
+
+    samples = measure(args.repeats)
+    load = os.getloadavg()
+    labels = [("drape (end to end)", "drape", 0)]
+    labels += [(label, label, indent) for label, *_, indent in PHASES[:2]]
+    labels += [("X_init", "X_init", 0)]
+    labels += [(label, label, indent) for label, *_, indent in PHASES[2:]]
+    labels += [("metrics", "metrics", 0), ("in Warp kernels (all phases)", "warp kernels", 0),
+               ("BVH searches", "BVH searches", 1)]
+
+    def median_ms(row: str, key: str) -> float:
+        return 1e3 * statistics.median(s["seconds"].get(key, 0.0) for s in samples[row])
+
+    def calls(row: str, key: str) -> str:
+        if key in ("drape", "X_init", "metrics"):  # one phase of each drape
+            return "1"
+        if key == "solver, the rest":
+            return "–"
+        return f"{statistics.median(s['calls'].get(key, 0) for s in samples[row]):.0f}"
+
+    medians = {row: {key: median_ms(row, key) for _, key, _ in labels} for row in samples}
+    for row in samples:  # what the solver's timed parts leave: conjugation, clips, updates
+        parts = [label for label, *_, indent in PHASES if indent == 1]
+        medians[row]["solver, the rest"] = 1e3 * statistics.median(
+            s["seconds"].get("stretching solver", 0.0) - sum(s["seconds"].get(p, 0.0) for p in parts)
+            for s in samples[row])
+    solver_end = max(i for i, (_, _, indent) in enumerate(labels) if indent == 1 and i < len(labels) - 1)
+    labels.insert(solver_end + 1, ("the rest (conjugation, clips, updates)", "solver, the rest", 1))
+    command = shlex.join(["python", *sys.argv])
+    info = provenance()
+    lines = ["# Where a warm drape's time goes (bundled model, T = 15, one thread)", "", *source_lines(command, info),
+             (f"Default T-shirt; medians over {args.repeats} drapes per row, the rows alternating; load average at "
+              f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}. Indented rows are part of the row above them; "
+              "calls: per drape."), "",
+             "| phase | same pose [ms] | calls | new pose [ms] | calls |", "|---|---:|---:|---:|---:|"]
+    for label, key, indent in labels:
+        name = ("&nbsp;&nbsp;&nbsp;&nbsp;" * indent) + label
+        lines.append(f"| {name} | {medians['same_pose'][key]:.1f} | {calls('same_pose', key)} | "
+                     f"{medians['new_pose'][key]:.1f} | {calls('new_pose', key)} |")
+    write_report(args.out, lines, {"command": command, "provenance": info, "load_average_end": load,
+                                   "repeats": args.repeats, "medians_ms": medians, "samples": samples})
+
+
+if __name__ == "__main__":
+    main()
