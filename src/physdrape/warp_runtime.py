@@ -74,6 +74,13 @@ def warp():
     return wp
 
 
+def launch_arg(tensor: torch.Tensor, dtype):
+    """`tensor` as a Warp launch argument of element type `dtype` (e.g. ``wp.vec3d``), without a
+    copy: an array descriptor (``wp.from_torch(..., return_ctype=True)``), cheaper to make than a
+    ``wp.array`` and launched alike; it keeps the tensor alive while it lives."""
+    return warp().from_torch(tensor, dtype=dtype, requires_grad=False, return_ctype=True)
+
+
 def torch_stream(device: torch.device):
     """A context running Warp work on torch's current stream of CUDA `device`, so that it is
     ordered with the torch ops that write its inputs and read its outputs; nothing on the CPU."""

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from physdrape.threads import parallel_map, run_parts
-from physdrape.warp_runtime import defined_once, torch_stream, warp
+from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
 __all__ = ["BodyBVH"]
 
@@ -176,10 +176,10 @@ class BodyBVH:
 
         def launch(lo: int, hi: int) -> None:
             wp.launch(ray_kernel, dim=hi - lo, device=self._wp_device,
-                      inputs=[self._mesh_ids, wp.from_torch(body[lo:hi], dtype=wp.int32),
-                              wp.from_torch(points32[lo:hi], dtype=wp.vec3),
-                              wp.from_torch(directions32[lo:hi], dtype=wp.vec3)],
-                      outputs=[wp.from_torch(hit[lo:hi], dtype=wp.int32)])
+                      inputs=[self._mesh_ids, launch_arg(body[lo:hi], wp.int32),
+                              launch_arg(points32[lo:hi], wp.vec3),
+                              launch_arg(directions32[lo:hi], wp.vec3)],
+                      outputs=[launch_arg(hit[lo:hi], wp.int32)])
 
         self._run_chunks(launch, points32.shape[0], threads)
         return hit.bool()
@@ -233,13 +233,13 @@ class BodyBVH:
         max_dist = 1.0e30
 
         def launch(lo: int, hi: int) -> None:
-            points = wp.from_torch(points32[lo:hi], dtype=wp.vec3)
-            owner = wp.from_torch(body[lo:hi], dtype=wp.int32)
-            out_face = wp.from_torch(face[lo:hi], dtype=wp.int32)
+            points = launch_arg(points32[lo:hi], wp.vec3)
+            owner = launch_arg(body[lo:hi], wp.int32)
+            out_face = launch_arg(face[lo:hi], wp.int32)
             if with_wn:
                 wp.launch(closest_winding_kernel, dim=hi - lo, device=self._wp_device,
                           inputs=[self._mesh_ids, owner, points, max_dist, winding_accuracy],
-                          outputs=[out_face, wp.from_torch(inside[lo:hi], dtype=wp.int32)])
+                          outputs=[out_face, launch_arg(inside[lo:hi], wp.int32)])
             else:
                 wp.launch(closest_kernel, dim=hi - lo, device=self._wp_device,
                           inputs=[self._mesh_ids, owner, points, max_dist], outputs=[out_face])

@@ -26,7 +26,7 @@ Numerics: float64 whatever the inputs' dtype (they are converted in, the results
 import torch
 from torch import Tensor
 
-from physdrape.warp_runtime import defined_once, torch_stream, warp
+from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
 __all__ = ["closest_point_float64", "closest_point_on_indexed_triangles", "closest_point_on_triangle",
            "feature_pseudo_normals"]
@@ -128,11 +128,11 @@ def _kernels() -> dict:
 
 
 def _vec3(wp, t: Tensor):
-    return wp.from_torch(t, dtype=wp.vec3d, requires_grad=False, return_ctype=True)
+    return launch_arg(t, wp.vec3d)
 
 
 def _int2d(wp, t: Tensor):
-    return wp.from_torch(t, dtype=wp.int32, requires_grad=False, return_ctype=True)
+    return launch_arg(t, wp.int32)
 
 
 class _ClosestPoint(torch.autograd.Function):

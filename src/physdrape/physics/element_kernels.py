@@ -36,7 +36,7 @@ from torch import Tensor
 
 from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
-from physdrape.warp_runtime import defined_once, torch_stream, warp
+from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
 __all__ = ["bend_energy_per_hinge", "bend_force", "hinge_angles", "run_kernel", "strain_energy_per_face", "strain_force"]
 
@@ -213,7 +213,7 @@ _WARP_DTYPES = {  # torch dtype, trailing shape → the Warp element type of an 
 
 def _to_warp(wp, tensor: Tensor, element_dims: int):
     dtype = getattr(wp, _WARP_DTYPES[tensor.dtype, tuple(tensor.shape[tensor.ndim - element_dims:])])
-    return wp.from_torch(tensor, dtype=dtype, requires_grad=False, return_ctype=True)
+    return launch_arg(tensor, dtype)
 
 
 class _ElementKernel(torch.autograd.Function):

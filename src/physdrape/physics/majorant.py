@@ -33,7 +33,7 @@ from torch import Tensor
 from physdrape.physics import element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
-from physdrape.warp_runtime import defined_once, torch_stream, warp
+from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
 __all__ = ["pair_blocks", "vertex_blocks"]
 
@@ -140,12 +140,12 @@ def _launch(kernel, x: Tensor, elements: Tensor, per_element: list[tuple[Tensor,
     they touch disjoint vertices (the garments of a packed batch, `physdrape.threads`)."""
     wp = warp()
     device = wp.device_from_torch(x.device)
-    target = wp.from_torch(out, dtype=wp.mat33d)
-    x64 = wp.from_torch(x, dtype=wp.vec3d)
+    target = launch_arg(out, wp.mat33d)
+    x64 = launch_arg(x, wp.vec3d)
 
     def launch(lo: int, hi: int) -> None:
         wp.launch(kernel, dim=hi - lo, device=device, outputs=[target],
-                  inputs=[x64, *(wp.from_torch(t[lo:hi], dtype=getattr(wp, kind)) for t, kind in per_element)])
+                  inputs=[x64, *(launch_arg(t[lo:hi], getattr(wp, kind)) for t, kind in per_element)])
 
     threads = torch.get_num_threads() if x.device.type == "cpu" else 1
     with torch_stream(x.device):
