@@ -8,8 +8,12 @@ by the seeded sampler beforehand and passed as an array). This script wraps the 
 up a drape with timers (the product code is not changed) and reports per drape the median time
 spent in each, with how often it ran:
 
-- posing the body and checking the arms against the torso, the body surface (BVH) build, X_init
-  (skinning transfer and strain limiting, the drape's `init_s`), the graph inputs and the GNN;
+- posing the body, and within it the check of the arms against the torso (which builds a BVH of
+  the torso of its own);
+- the init phase (the drape's `init_s`: the pipeline's build), and within it the build of the
+  body surface (its BVH), the doubtful faces of a new body (`BodySurface.doubtful_faces`) and
+  X_init (skinning transfer and strain limiting, its queries included);
+- the graph inputs and the GNN;
 - the stretching solver, and within it the body requeries, the coarse factorisations, the
   stiffness blocks and their inverses, the forces, the contact blocks, the coarse solves and the
   line-search potentials (the rest: the conjugation, clips and updates);
@@ -17,7 +21,7 @@ spent in each, with how often it ran:
 - across all of them, the time inside Warp kernels (compiled code), and of that the BVH searches
   (closest faces, winding numbers, rays): what a faster Python or torch layer cannot remove.
 
-Nested rows are part of the row above them. Writes <out>.md and <out>.json with the command, the
+Indented rows are part of the unindented row above them. Writes <out>.md and <out>.json with the command, the
 commit and the load average.
 """
 
@@ -33,8 +37,11 @@ import time
 
 #: (label, module, class or None, attribute, indent): the timed methods, in the table's order.
 PHASES = [
-    ("posing and arm check", "physdrape.api.draper", "Draper", "_posed_bodies", 0),
-    ("body surface build", "physdrape.geometry.proximity", "BodySurface", "__init__", 0),
+    ("posing", "physdrape.api.draper", "Draper", "_posed_bodies", 0),
+    ("arm–torso check", "physdrape.api.draper", None, "arm_torso_penetration", 1),
+    ("body surface build", "physdrape.pipeline", "PosedBodies", "surface", 1),
+    ("doubtful faces", "physdrape.geometry.proximity", "BodySurface", "doubtful_faces", 1),
+    ("X_init", "physdrape.pipeline", "DrapePipeline", "_x_inits", 1),
     ("graph inputs", "physdrape.model.physdrape", "PhysDrape", "graph_inputs", 0),
     ("GNN", "physdrape.model.gnn", "EncodeProcessDecode", "forward", 0),
     ("stretching solver", "physdrape.model.stretching_solver", "StretchingSolver", "forward", 0),
@@ -112,7 +119,8 @@ def measure(repeats: int) -> dict[str, list[dict]]:
     torch.set_num_threads(1)
     timers = Timers()
     for label, module, owner, attribute, _ in PHASES:
-        timers.wrap(getattr(importlib.import_module(module), owner), attribute, label)
+        place = importlib.import_module(module)
+        timers.wrap(place if owner is None else getattr(place, owner), attribute, label)
     timers.wrap_warp()
     from physdrape.api import Draper
 
@@ -129,7 +137,7 @@ def measure(repeats: int) -> dict[str, list[dict]]:
             wall = time.perf_counter() - start
             timers.active = False
             seconds, calls = timers.take()
-            seconds.update({"X_init": res.timings["init_s"], "metrics": res.timings["metrics_s"], "drape": wall})
+            seconds.update({"init phase": res.timings["init_s"], "metrics": res.timings["metrics_s"], "drape": wall})
             out[row].append({"seconds": seconds, "calls": calls})
     return out
 
@@ -148,7 +156,7 @@ def main() -> None:
     load = os.getloadavg()
     labels = [("drape (end to end)", "drape", 0)]
     labels += [(label, label, indent) for label, *_, indent in PHASES[:2]]
-    labels += [("X_init", "X_init", 0)]
+    labels += [("init phase (the pipeline's build)", "init phase", 0)]
     labels += [(label, label, indent) for label, *_, indent in PHASES[2:]]
     labels += [("metrics", "metrics", 0), ("in Warp kernels (all phases)", "warp kernels", 0),
                ("BVH searches", "BVH searches", 1)]
@@ -157,25 +165,26 @@ def main() -> None:
         return 1e3 * statistics.median(s["seconds"].get(key, 0.0) for s in samples[row])
 
     def calls(row: str, key: str) -> str:
-        if key in ("drape", "X_init", "metrics"):  # one phase of each drape
+        if key in ("drape", "init phase", "metrics"):  # one phase of each drape
             return "1"
         if key == "solver, the rest":
             return "–"
         return f"{statistics.median(s['calls'].get(key, 0) for s in samples[row]):.0f}"
 
     medians = {row: {key: median_ms(row, key) for _, key, _ in labels} for row in samples}
+    solver = [label for label, *_ in PHASES].index("stretching solver")
     for row in samples:  # what the solver's timed parts leave: conjugation, clips, updates
-        parts = [label for label, *_, indent in PHASES if indent == 1]
+        parts = [label for label, *_, indent in PHASES[solver + 1:] if indent == 1]
         medians[row]["solver, the rest"] = 1e3 * statistics.median(
             s["seconds"].get("stretching solver", 0.0) - sum(s["seconds"].get(p, 0.0) for p in parts)
             for s in samples[row])
-    solver_end = max(i for i, (_, _, indent) in enumerate(labels) if indent == 1 and i < len(labels) - 1)
+    solver_end = labels.index(("line-search potentials", "line-search potentials", 1))
     labels.insert(solver_end + 1, ("the rest (conjugation, clips, updates)", "solver, the rest", 1))
     command = shlex.join(["python", *sys.argv])
     info = provenance()
     lines = ["# Where a warm drape's time goes (bundled model, T = 15, one thread)", "", *source_lines(command, info),
              (f"Default T-shirt; medians over {args.repeats} drapes per row, the rows alternating; load average at "
-              f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}. Indented rows are part of the row above them; "
+              f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}. Indented rows are part of the unindented row above them; "
               "calls: per drape."), "",
              "| phase | same pose [ms] | calls | new pose [ms] | calls |", "|---|---:|---:|---:|---:|"]
     for label, key, indent in labels:
