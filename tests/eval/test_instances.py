@@ -4,14 +4,17 @@ many instances are drawn, nor on the poses per garment."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 import torch
 
 from physdrape.body.pool import BodyPool
 from physdrape.eval.config import EvalConfig
-from physdrape.eval.instances import body_seed, garment_category, layout, split_instances
+from physdrape.eval.instances import body_seed, garment_category, layout, makehuman_instances, split_instances
 from physdrape.pipeline import POSE_DTYPE
+
+SUIT_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "makehuman_cc0" / "female_casualsuit01"
 
 
 @pytest.fixture(scope="module")
@@ -75,3 +78,21 @@ def test_bad_layout_settings_are_refused():
         EvalConfig(poses_per_garment=0)
     with pytest.raises(ValueError, match="seed must be ≥ 0"):
         EvalConfig(seed=-1)
+
+
+@pytest.mark.skipif(not (SUIT_DIR / "female_casualsuit01.mhclo").is_file(), reason=f"MakeHuman CC0 suit not found at {SUIT_DIR}")
+def test_a_makehuman_instance_is_worn_as_the_draper_wears_the_suit(tmp_path, anny_body):
+    from physdrape.api import Draper
+
+    (tmp_path / SUIT_DIR.name).symlink_to(SUIT_DIR)
+    [instance], notes = makehuman_instances(EvalConfig(makehuman_dir=str(tmp_path), oracle=False), anny_body)
+    assert notes == []
+    batch = instance.batch()
+    cloth = batch.drape.cloth
+    assert cloth.grip is not None and cloth.layers is not None  # the energy the oracle minimises has them
+    pool = BodyPool.from_seeds(anny_body, [instance.body_seed], dtype=POSE_DTYPE)
+    [res] = Draper().drape(str(SUIT_DIR / "female_casualsuit01.mhclo"), shape=pool.shapes[0].tolist(),
+                           pose=pool.poses[0])
+    x_init = torch.as_tensor(res.x_init, dtype=batch.drape.x_init.dtype)
+    torch.testing.assert_close(batch.drape.x_init, x_init, rtol=0, atol=1e-6)  # sized to fit, as Draper does
+    assert not torch.equal(batch.skinned, batch.drape.x_init)  # the oracle's start: skinned from the same rest

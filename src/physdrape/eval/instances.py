@@ -8,7 +8,8 @@ number of instances N, which takes the first N of this one list: by default N = 
 garment (the whole test split, every garment `EvalConfig.poses_per_garment` times). The CC0
 MakeHuman garments form a second set laid out the same way (`EvalConfig.makehuman_instances` poses
 each), g being the garment's place among the .mhclo files found, so that skipping one garment
-does not move the others' bodies.
+does not move the others' bodies; they are loaded and worn as `Draper.drape` loads and wears an
+.mhclo by default (`instance_batch`'s `worn`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from physdrape.api.wear import Wear, Wearing
 from physdrape.body.pool import BodyPool
 from physdrape.body.skinning_transfer import LOCAL_STRETCH_BOUND
 from physdrape.eval.config import EvalConfig
@@ -31,6 +33,7 @@ from physdrape.garments.generator import GarmentCategory
 from physdrape.garments.split import DEFAULT_SIZES, read_manifest
 from physdrape.model import DrapeInput
 from physdrape.physics import Material
+from physdrape.physics.grip import DEFAULT_GRIP_STIFFNESS
 from physdrape.pipeline import POSE_DTYPE, DrapePipeline, Job, PosedBodies, Template
 from physdrape.train.data import DataConfig, default_split_dir, load_templates
 
@@ -105,26 +108,38 @@ class Instance:
                 "body_seed": self.body_seed, "num_verts": self.num_verts}
 
 
-def instance_batch(pipeline: DrapePipeline, pool: BodyPool, template: Template, body: int) -> InstanceInput:
+def instance_batch(pipeline: DrapePipeline, pool: BodyPool, template: Template, body: int, *,
+                   worn: bool = False) -> InstanceInput:
     """`template` on pool body `body`, default material, built by the drape pipeline exactly as
-    `Draper.drape` builds it (see `InstanceInput`)."""
+    `Draper.drape` builds it (see `InstanceInput`). `worn`: as `Draper.drape` wears a garment by
+    default (`api.wear`): sized to fit where the garment has a sizing (an .mhclo: by its body
+    binding), its waistband gripped, its closures stitched and its pieces kept in their layer
+    order; the drape's cloth then carries those terms, so the oracle minimises the same energy.
+    The skinned start is skinned from the same rest shape."""
     posed = PosedBodies(pool.state(body))
     pipeline.transfer(template)  # fitted once per garment, outside the timing
+    job = Job(template, 0, Material())
+    if worn:
+        wear = Wear(sizing=None, grip=DEFAULT_GRIP_STIFFNESS, closures="auto", layers="auto")
+        job = Wearing().job(template, 0, Material(), None, wear, posed.state, pool.shapes[body:body + 1], pipeline)
     t0 = time.perf_counter()
-    drape = pipeline.build([Job(template, 0, Material())], posed)
+    drape = pipeline.build([job], posed)
     init_s = time.perf_counter() - t0
     with torch.no_grad():
-        skinned = replace(pipeline.transfer(template), max_stretch=LOCAL_STRETCH_BOUND).apply(posed.state)[0]
+        rest = None if job.rest is None else torch.as_tensor(job.rest, dtype=posed.state.rest_verts.dtype)
+        skinned = replace(pipeline.transfer(template), max_stretch=LOCAL_STRETCH_BOUND).apply(posed.state,
+                                                                                              rest_verts=rest)[0]
     return InstanceInput(drape, init_s, skinned.to(pipeline.dtype))
 
 
 def build_instances(set_name: str, templates: Sequence[Template], *, num_garments: int, count: int,
-                    config: EvalConfig, body, keys: Sequence[int] | None = None) -> list[Instance]:
+                    config: EvalConfig, body, keys: Sequence[int] | None = None, worn: bool = False) -> list[Instance]:
     """The first `count` instances of a set of `num_garments` garments (see the module docstring).
 
     Args:
         templates: the set's first garments, at least min(num_garments, count) of them.
         keys: the number each garment's bodies are seeded with (default: its place in the set).
+        worn: wear the garments as `Draper.drape` does by default (`instance_batch`).
     """
     grid = layout(num_garments, count)
     needed = min(num_garments, count)
@@ -136,7 +151,8 @@ def build_instances(set_name: str, templates: Sequence[Template], *, num_garment
     pool = BodyPool.from_seeds(body, seeds, dtype=POSE_DTYPE)
     pipeline = DrapePipeline(body, dtype=getattr(torch, config.dtype))
     return [Instance(set_name, i, templates[g].name, g, i, templates[g].num_verts,
-                     partial(instance_batch, pipeline, pool, templates[g], i), pose_index=k, body_seed=seeds[i])
+                     partial(instance_batch, pipeline, pool, templates[g], i, worn=worn), pose_index=k,
+                     body_seed=seeds[i])
             for i, (g, k) in enumerate(grid)]
 
 
@@ -160,7 +176,8 @@ def split_instances(config: EvalConfig, body) -> list[Instance]:
 def makehuman_instances(config: EvalConfig, body) -> tuple[list[Instance], list[str]]:
     """Instances of the CC0 MakeHuman garments, `makehuman_instances` poses each, and notes on the
     garments skipped (missing, unreadable or over `makehuman_max_verts`)."""
-    from physdrape.garments.mhclo import load_mhclo
+    from physdrape.api.specs import garment_template
+    from physdrape.api.types import DrapeError
 
     notes = []
     root = Path(config.makehuman_dir).expanduser()
@@ -170,17 +187,18 @@ def makehuman_instances(config: EvalConfig, body) -> tuple[list[Instance], list[
     templates, keys = [], []
     for key, path in enumerate(files):
         try:
-            g = load_mhclo(path)
-            if config.makehuman_max_verts and len(g.verts) > config.makehuman_max_verts:
-                notes.append(f"MakeHuman: {path.name} skipped ({len(g.verts)} vertices > makehuman_max_verts "
-                             f"{config.makehuman_max_verts})")
-                continue
-            templates.append(Template.from_mesh(g.verts, g.faces, name=path.stem))
-            keys.append(key)
-        except Exception as exc:
+            template = garment_template(str(path))  # as `Draper.drape` loads an .mhclo, with its sizing
+        except (DrapeError, OSError, ValueError) as exc:
             notes.append(f"MakeHuman: {path.name} skipped ({type(exc).__name__}: {exc})")
+            continue
+        if config.makehuman_max_verts and template.num_verts > config.makehuman_max_verts:
+            notes.append(f"MakeHuman: {path.name} skipped ({template.num_verts} vertices > makehuman_max_verts "
+                         f"{config.makehuman_max_verts})")
+            continue
+        templates.append(template)
+        keys.append(key)
     if not templates:
         return [], notes
     count = len(templates) * config.makehuman_instances
     return build_instances("makehuman", templates, num_garments=len(templates), count=count, config=config,
-                           body=body, keys=keys), notes
+                           body=body, keys=keys, worn=True), notes

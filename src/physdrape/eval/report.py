@@ -127,7 +127,9 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
                    "two oracle results, the best equilibrium found from either start.")
     out.append("")
     out.append("Energies are means over instances under the default material; E_total = E_strain + E_bend + E_grav + "
-               "contact penalty (what the oracle minimises). Ratios: row mean / reference mean on "
+               "contact penalty (what the oracle minimises), plus, for the MakeHuman garments, worn as `Draper.drape` "
+               "wears an .mhclo (sized to fit, waistband gripped, closures stitched, pieces kept in their layer "
+               "order), the grip, stitch and layer-order terms. Ratios: row mean / reference mean on "
                "the same instances. residual: mean |F_int| over vertices > 3 mm from the body. The oracle's wall time "
                "is a lower bound where it stopped on its budget instead of converging.")
     cache = results.get("reference_cache")
