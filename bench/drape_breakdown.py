@@ -21,8 +21,8 @@ spent in each, with how often it ran:
 - across all of them, the time inside Warp kernels (compiled code), and of that the BVH searches
   (closest faces, winding numbers, rays): what a faster Python or torch layer cannot remove.
 
-Indented rows are part of the unindented row above them. Writes <out>.md and <out>.json with the command, the
-commit and the load average.
+Indented rows are part of the unindented row above them. Writes <out>.md and <out>.json with the
+command, the commit and the load average.
 """
 
 from __future__ import annotations

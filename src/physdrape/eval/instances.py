@@ -33,7 +33,6 @@ from physdrape.garments.generator import GarmentCategory
 from physdrape.garments.split import DEFAULT_SIZES, read_manifest
 from physdrape.model import DrapeInput
 from physdrape.physics import Material
-from physdrape.physics.grip import DEFAULT_GRIP_STIFFNESS
 from physdrape.pipeline import POSE_DTYPE, DrapePipeline, Job, PosedBodies, Template
 from physdrape.train.data import DataConfig, default_split_dir, load_templates
 
@@ -120,7 +119,7 @@ def instance_batch(pipeline: DrapePipeline, pool: BodyPool, template: Template, 
     pipeline.transfer(template)  # fitted once per garment, outside the timing
     job = Job(template, 0, Material())
     if worn:
-        wear = Wear(sizing=None, grip=DEFAULT_GRIP_STIFFNESS, closures="auto", layers="auto")
+        wear = Wear.check(sizing=None, grip=None, closures=None, layers=None, templates=[template])  # the defaults
         job = Wearing().job(template, 0, Material(), None, wear, posed.state, pool.shapes[body:body + 1], pipeline)
     t0 = time.perf_counter()
     drape = pipeline.build([job], posed)
