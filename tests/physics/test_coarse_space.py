@@ -1,5 +1,7 @@
 """The coarse level of the two-level preconditioner: P (Pᵀ K P)⁻¹ Pᵀ against dense algebra (float64)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -10,6 +12,9 @@ from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet, open_cylinder
 from physdrape.physics import Cloth
 from physdrape.physics.coarse_space import REGULARIZATION, CoarseSpace
+from physdrape.physics.forces import extra_blocks, links
+from physdrape.physics.layers import LayerOrder
+from physdrape.physics.stitches import Stitches
 
 
 def _batch():
@@ -36,6 +41,8 @@ def _dense_prolongation(batch, levels=2, smoothing=2):
 
 
 def _dense_stiffness(x, cloth, extra):
+    """K: the faces' majorant blocks, `extra` on the diagonal (with `extra_blocks`, the links'
+    diagonal blocks H), and each link's coupling −H between its two vertices."""
     n = 3 * cloth.num_verts
     k = np.zeros((n, n))
     blocks = face_blocks(x, cloth).numpy()
@@ -44,6 +51,10 @@ def _dense_stiffness(x, cloth, extra):
         k[np.ix_(dof, dof)] += blocks[f]
     for v in range(cloth.num_verts):
         k[3 * v:3 * v + 3, 3 * v:3 * v + 3] += extra[v].numpy()
+    tied = links(cloth)
+    for (a, b), h in zip(tied.pairs.tolist(), tied.blocks.numpy()) if tied is not None else ():
+        k[3 * a:3 * a + 3, 3 * b:3 * b + 3] -= h
+        k[3 * b:3 * b + 3, 3 * a:3 * a + 3] -= h
     return k
 
 
@@ -54,10 +65,26 @@ def _contact_blocks(num_verts, seed=1):
     return 40.0 * torch.rand(num_verts, generator=gen, dtype=torch.float64)[:, None, None] * normal[:, :, None] * normal[:, None, :]
 
 
-def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment():
+def _linked(cloth, batch):
+    """The cloth with stitches inside the sheet and layer pairs inside the tube."""
+    gen = torch.Generator().manual_seed(3)
+    sheet_verts, tube_verts = batch.garments[0].num_verts, batch.garments[1].num_verts
+    stitched = torch.randperm(sheet_verts, generator=gen)[:16].reshape(8, 2)
+    layered = sheet_verts + torch.randperm(tube_verts, generator=gen)[:20].reshape(10, 2)
+    normal = torch.nn.functional.normalize(torch.randn(10, 3, generator=gen, dtype=torch.float64), dim=-1)
+    return replace(cloth, stitches=Stitches(stitched, torch.full((8,), 0.01, dtype=torch.float64),
+                                            torch.full((8,), 200.0, dtype=torch.float64)),
+                   layers=LayerOrder.build(layered, normal))
+
+
+@pytest.mark.parametrize("linked", [False, True], ids=["faces", "faces_and_links"])
+def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment(linked):
     batch, cloth, x = _batch()
     gen = torch.Generator().manual_seed(1)
     extra = _contact_blocks(cloth.num_verts)
+    if linked:
+        cloth = _linked(cloth, batch)
+        extra = extra + extra_blocks(cloth)
     coarse = CoarseSpace(cloth)
     coarse.factor(x, extra)
     r = torch.randn(cloth.num_verts, 3, generator=gen, dtype=torch.float64)
@@ -88,9 +115,40 @@ def test_coarse_correction_is_differentiable_in_the_forces_and_needs_a_factor():
 
 
 def test_coarse_space_checks_its_arguments():
-    _, cloth, _ = _batch()
+    batch, cloth, _ = _batch()
     with pytest.raises(ValueError, match="levels"):
         CoarseSpace(cloth, levels=0)
+    across = Stitches(torch.tensor([[0, batch.num_verts - 1]]), torch.zeros(1, dtype=torch.float64),
+                      torch.ones(1, dtype=torch.float64))
+    with pytest.raises(ValueError, match="ties two garments"):
+        CoarseSpace(replace(cloth, stitches=across))
+
+
+def test_stitched_pieces_slide_together_as_freely_as_one():
+    """Two sheets 5 mm apart, one garment, stitched vertex to vertex with stitches a thousand times
+    stiffer than the weak springs that hold every vertex in place: a uniform force moves them
+    together, and the stitches must not resist that (only the pieces' relative motion is
+    theirs). A stitch's stiffness on the diagonal alone would act as a spring to a fixed point
+    and shrink the move about a thousandfold."""
+    verts, faces = grid_sheet(8, 8, width=0.2, height=0.2)
+    lower = verts + np.array([0.0, -0.005, 0.0])
+    two = Garment.from_mesh(np.concatenate([verts, lower]), np.concatenate([faces, faces + len(verts)]),
+                            name="two sheets", dtype=torch.float64)
+    cloth = Cloth.build(two)
+    x = two.rest.clone()
+    held = 1.0 * torch.eye(3, dtype=torch.float64).expand(cloth.num_verts, 3, 3)  # 1 N/m per vertex
+    pairs = torch.stack([torch.arange(len(verts)), torch.arange(len(verts)) + len(verts)], dim=1)
+    stitched = replace(cloth, stitches=Stitches(pairs, torch.full((len(pairs),), 0.005, dtype=torch.float64),
+                                                torch.full((len(pairs),), 1000.0, dtype=torch.float64)))
+    force = torch.tensor([0.0, 0.0, -1e-3], dtype=torch.float64).expand(cloth.num_verts, 3)
+    moves = []
+    for c in (cloth, stitched):
+        coarse = CoarseSpace(c)
+        coarse.factor(x, held + (0.0 if c.stitches is None else extra_blocks(c)))
+        moves.append(coarse.solve(force))
+    free, tied = moves
+    assert float(free[:, 2].mean()) < -5e-4  # not vacuous: the weak springs let the sheets move ~1 mm
+    torch.testing.assert_close(tied, free, rtol=0.01, atol=0.01 * float(free.abs().max()))
 
 
 def test_a_float32_batch_gets_the_float64_correction_to_float32_precision():

@@ -321,8 +321,9 @@ class _Relaxation:
 
     def contact_blocks(self, x: Tensor) -> Tensor | None:
         """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) at x on the held planes,
-        samples within `band` of their plane taken at depth ≥ ε, plus the grip's and the stitches'
-        (`physics.forces.extra_blocks`); or None without any."""
+        samples within `band` of their plane taken at depth ≥ ε, plus the grip's and the diagonal
+        blocks of the stitches' and layer pairs' (`physics.forces.extra_blocks`; the coarse space
+        adds their coupling); or None without any."""
         extra = extra_blocks(self.cloth)
         if self.planes is None:
             return extra

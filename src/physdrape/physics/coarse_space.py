@@ -9,18 +9,23 @@ adds the motions of a few hundred smooth patches per garment, solved together:
 
     z_c = P (Pᵀ K P)⁻¹ Pᵀ r,
 
-with K the PSD strain-Hessian majorant of every face (`physics.majorant.pair_blocks`) plus the
-solver's contact blocks, and P a smoothed-aggregation prolongation (`topology.aggregates`,
+with K the PSD strain-Hessian majorant of every face (`physics.majorant.pair_blocks`), the
+solver's per-vertex blocks (contact, grip, the links' diagonal blocks: `physics.forces.extra_blocks`)
+and the links' coupling (the off-diagonal blocks −H of the stitches' and layer pairs' majorant
+[[H, −H], [−H, H]], `physics.forces.links`), and P a smoothed-aggregation prolongation (`topology.aggregates`,
 `topology.smoothed_prolongation`): patch indicators averaged over mesh neighbours, so a patch
 moves as a smooth bump and no kink is left at its border (raw indicators leave kinks that the
-fine level then has to bend out). Bending is left out of Pᵀ K P: smooth patches barely bend,
+fine level then has to bend out). The links' coupling matters for a multi-piece garment: without
+it a stitched or layered vertex's H acts in the coarse space as a spring to a fixed point, and
+the pieces cannot slide together over the body; with it only their relative motion is stiff.
+Bending is left out of Pᵀ K P: smooth patches barely bend,
 and its hinge blocks (16 vertex pairs each) would more than double the gather for little change
 in the correction.
 
 Numerics: patches and P depend on a garment's topology only and are cached. K (in the cloth's
-dtype) is gathered into 3×3 blocks of the vertex pairs that share a face. Pᵀ K P is linear in
+dtype) is gathered into 3×3 blocks of the vertex pairs that share a face or a link. Pᵀ K P is linear in
 those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so a
-garment's topology fixes a sparse Galerkin operator G (coarse blocks × pairs), built once and
+garment's topology and links fix a sparse Galerkin operator G (coarse blocks × pairs), built once and
 cached, and each `factor` forms Pᵀ K P as one sparse product G · K in float64 for all the
 batch's garments of that topology, scattered straight into each garment's dense coarse matrix,
 which is then factorised (dense Cholesky). The correction is
@@ -47,6 +52,7 @@ from torch import Tensor
 
 from physdrape.geometry import topology
 from physdrape.physics.cloth import Cloth
+from physdrape.physics.forces import links
 from physdrape.physics.majorant import pair_blocks
 
 __all__ = ["CoarseSpace"]
@@ -117,18 +123,23 @@ def _galerkin_operator(prolong: sp.csr_matrix, rows: np.ndarray, cols: np.ndarra
     return operator, blocks
 
 
-def _vertex_pairs(faces: np.ndarray, num_verts: int) -> tuple[np.ndarray, np.ndarray]:
-    """The vertex pairs (a, b) that share a face, as keys a · num_verts + b, ascending, and the
-    pair of each face's corner pair (F, 9), entry 3 i + j for corners i, j."""
-    key = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
-    pairs, where = np.unique(key, return_inverse=True)
-    return pairs, where.reshape(-1, 9)
+def _vertex_pairs(faces: np.ndarray, num_verts: int,
+                  linked: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vertex pairs (a, b) that share a face or a link (`linked` (L, 2), both orders), as keys
+    a · num_verts + b, ascending; the pair of each face's corner pair (F, 9), entry 3 i + j for
+    corners i, j; and the pairs (a, b) and (b, a) of each link (L, 2)."""
+    corner = np.repeat(faces, 3, axis=1).reshape(-1).astype(np.int64) * num_verts + np.tile(faces, (1, 3)).reshape(-1)
+    link = np.stack([linked[:, 0] * num_verts + linked[:, 1], linked[:, 1] * num_verts + linked[:, 0]], axis=1)
+    pairs, where = np.unique(np.concatenate([corner, link.reshape(-1)]), return_inverse=True)
+    where = where.reshape(-1)
+    return pairs, where[:len(corner)].reshape(-1, 9), where[len(corner):].reshape(-1, 2)
 
 
 @dataclass(frozen=True)
 class _GarmentGalerkin:
     """One garment topology's coarse space: P (V, patches), its vertex pairs (the pair of each
-    face's corner pair (F, 9) and of each vertex with itself (V,), numbered in ascending key order),
+    face's corner pair (F, 9), of each vertex with itself (V,) and of each link both ways (L, 2),
+    numbered in ascending key order),
     its Galerkin operator G (coarse blocks, pairs) and where each entry (a, b) of each coarse block
     (I, J) goes in its dense coarse matrix, row-major: (3 I + a) · 3 patches + 3 J + b."""
 
@@ -136,6 +147,7 @@ class _GarmentGalerkin:
     num_pairs: int
     pair_of_corner: np.ndarray
     pair_of_vertex: np.ndarray
+    pair_of_link: np.ndarray
     operator: sp.csr_matrix
     destination: np.ndarray
 
@@ -150,25 +162,30 @@ _GALERKIN_SIZE = 128
 _CACHE_LOCK = threading.RLock()
 
 
-def _garment_galerkin(faces: np.ndarray, num_verts: int, levels: int, smoothing: int) -> _GarmentGalerkin:
-    """The coarse space of one garment (local vertex ids), cached by topology."""
-    key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], num_verts, levels, smoothing)
+def _garment_galerkin(faces: np.ndarray, num_verts: int, linked: np.ndarray, levels: int,
+                      smoothing: int) -> _GarmentGalerkin:
+    """The coarse space of one garment (local vertex ids; links (L, 2)), cached by topology and links."""
+    key = (_digest(faces), faces.shape[0], _digest(linked), num_verts, levels, smoothing)
     with _CACHE_LOCK:
         if key not in _GALERKIN:
             prolong = _garment_prolongation(faces, num_verts, levels, smoothing)
-            pairs, where = _vertex_pairs(faces, num_verts)
+            pairs, where, link_pairs = _vertex_pairs(faces, num_verts, linked)
             itself = np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))
             operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
             patches = prolong.shape[1]
             row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
             col = 3 * (blocks % patches)[:, None] + np.arange(3)
             destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
-            _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, operator,
-                                              destination)
+            _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, link_pairs,
+                                              operator, destination)
             while len(_GALERKIN) > _GALERKIN_SIZE:
                 _GALERKIN.popitem(last=False)
         _GALERKIN.move_to_end(key)
         return _GALERKIN[key]
+
+
+def _digest(array: np.ndarray) -> bytes:
+    return hashlib.blake2b(np.ascontiguousarray(array, np.int64).tobytes(), digest_size=16).digest()
 
 
 def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
@@ -196,7 +213,8 @@ class _Group:
 @dataclass(frozen=True)
 class _BatchStructure:
     """What a packed batch's coarse space keeps of its topology, on the cloth's device: P and Pᵀ
-    (sparse CSR, float64), where each face's corner-pair blocks of K go, the Galerkin operator of
+    (sparse CSR, float64), where each face's corner-pair blocks of K go and each link's (both
+    ways, in the order of `physics.forces.links`), the Galerkin operator of
     each distinct garment topology with where its products go in the garments' dense coarse
     matrices (one flat buffer, garment after garment), and each garment's coarse dofs and place in
     that buffer."""
@@ -208,20 +226,29 @@ class _BatchStructure:
     num_pairs: int
     pair_of_corner: Tensor
     pair_of_vertex: Tensor
+    pair_of_link: Tensor  # (L, 2)
     groups: list[_Group]
     prolong: Tensor  # P, sparse CSR (V, patches)
     restrict: Tensor  # Pᵀ, sparse CSR (patches, V)
 
     @staticmethod
-    def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], levels: int,
-              smoothing: int, device: torch.device) -> _BatchStructure:
+    def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], linked: np.ndarray,
+              levels: int, smoothing: int, device: torch.device) -> _BatchStructure:
         garments, coarse_ranges, matrix_offsets, pair_starts = [], [], [], []
         v0, f0, c0, offset, p0 = 0, 0, 0, 0, 0
-        for nv, nf in zip(vert_counts, face_counts):
+        starts = np.cumsum((0, *vert_counts))
+        link_garment = np.searchsorted(starts, linked, side="right") - 1  # (L, 2)
+        if (link_garment[:, 0] != link_garment[:, 1]).any():
+            raise ValueError("CoarseSpace: a stitch or layer pair ties two garments; links must join vertices of "
+                             "one garment")
+        pair_of_link = np.zeros(linked.shape, np.int64)
+        for g, (nv, nf) in enumerate(zip(vert_counts, face_counts)):
             local = faces[f0:f0 + nf] - v0
             if nf and (local.min() < 0 or local.max() >= nv):
                 raise ValueError("CoarseSpace needs each garment's vertices and faces packed contiguously")
-            garment = _garment_galerkin(np.ascontiguousarray(local), nv, levels, smoothing)
+            own = np.flatnonzero(link_garment[:, 0] == g)
+            garment = _garment_galerkin(np.ascontiguousarray(local), nv, linked[own] - v0, levels, smoothing)
+            pair_of_link[own] = garment.pair_of_link + p0
             garments.append(garment)
             patches = garment.prolong.shape[1]
             coarse_ranges.append((3 * c0, 3 * (c0 + patches)))
@@ -250,6 +277,7 @@ class _BatchStructure:
                 [g.pair_of_corner + start for g, start in zip(garments, pair_starts)]).astype(np.int32)).to(device),
             pair_of_vertex=torch.from_numpy(np.concatenate(
                 [g.pair_of_vertex + start for g, start in zip(garments, pair_starts)])).to(device),
+            pair_of_link=torch.from_numpy(pair_of_link).to(device),
             groups=groups,
             prolong=_sparse_csr(prolong, device),
             restrict=_sparse_csr(prolong.T.tocsr(), device),
@@ -278,11 +306,13 @@ class CoarseSpace:
         faces = cloth.faces.cpu().numpy()
         vert_counts = tuple(torch.bincount(cloth.vert_garment, minlength=cloth.num_garments).tolist())
         face_counts = tuple(torch.bincount(cloth.face_garment, minlength=cloth.num_garments).tolist())
-        key = (hashlib.blake2b(faces.tobytes(), digest_size=16).digest(), faces.shape[0], vert_counts, face_counts,
-               levels, smoothing, str(cloth.device))
+        self._links = links(cloth)
+        linked = np.zeros((0, 2), np.int64) if self._links is None else self._links.pairs.cpu().numpy()
+        key = (_digest(faces), faces.shape[0], _digest(linked), vert_counts, face_counts, levels, smoothing,
+               str(cloth.device))
         with _CACHE_LOCK:
             if key not in _STRUCTURES:
-                _STRUCTURES[key] = _BatchStructure.build(faces, vert_counts, face_counts, levels, smoothing,
+                _STRUCTURES[key] = _BatchStructure.build(faces, vert_counts, face_counts, linked, levels, smoothing,
                                                          cloth.device)
                 while len(_STRUCTURES) > _STRUCTURES_SIZE:
                     _STRUCTURES.popitem(last=False)
@@ -292,13 +322,19 @@ class CoarseSpace:
         self._factors: list[Tensor] | None = None
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
-        """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): extra
-        per-vertex stiffness added to K (the solver's contact blocks), or None."""
+        """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
+        blocks added to the strain majorant's (the solver's contact blocks and
+        `physics.forces.extra_blocks`), or None. The cloth's links add their coupling −H between
+        the two vertices of each link; their diagonal blocks H are `extra_blocks`', which must
+        then be among vertex_blocks for K to be PSD."""
         s = self._s
         with torch.no_grad():
             blocks = pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
             if vertex_blocks is not None:
                 blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
+            if self._links is not None:
+                coupling = -self._links.blocks.to(blocks.dtype)
+                blocks.index_add_(0, s.pair_of_link[:, 0], coupling).index_add_(0, s.pair_of_link[:, 1], coupling)
             flat = blocks.reshape(-1, 9)
             dense = blocks.new_zeros(s.buffer_size)
             for group in s.groups:  # Pᵀ K P block by block: G times the pair blocks of the group's garments

@@ -6,6 +6,8 @@ measures the same energy."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
@@ -54,19 +56,48 @@ def internal_energy(x: Tensor, cloth: Cloth) -> Tensor:
     return sum(energy_terms(x, cloth).values())
 
 
+@dataclass(frozen=True)
+class Links:
+    """The vertex pairs that the stitches and the layer order tie, and each pair's coupling.
+
+    Attributes:
+        pairs: (L, 2) int64 vertex indices, the stitches' pairs first, then the layer order's.
+        blocks: H (L, 3, 3) [N/m], independent of x, with each pair's Hessian ≤ [[H, −H], [−H, H]]:
+            k I for a stitch (≥ its exact block, `physics.stitches`), k n nᵀ for a layer pair (its
+            exact block where the pair is active, `physics.layers`).
+    """
+
+    pairs: Tensor
+    blocks: Tensor
+
+
+def links(cloth: Cloth) -> Links | None:
+    """The cloth's `Links` in its dtype, or None when it has neither stitches nor a layer order."""
+    pairs, blocks = [], []
+    if cloth.stitches is not None:
+        k = cloth.stitches.stiffness.to(cloth.dtype)
+        pairs.append(cloth.stitches.pairs)
+        blocks.append(k[:, None, None] * torch.eye(3, dtype=cloth.dtype, device=k.device))
+    if cloth.layers is not None:
+        k, n = cloth.layers.stiffness.to(cloth.dtype), cloth.layers.normal.to(cloth.dtype)
+        pairs.append(cloth.layers.pairs)
+        blocks.append(k[:, None, None] * n[:, :, None] * n[:, None, :])
+    if not pairs:
+        return None
+    return Links(torch.cat(pairs), torch.cat(blocks))
+
+
 def extra_blocks(cloth: Cloth) -> Tensor | None:
-    """3×3 blocks per vertex (V, 3, 3) [N/m] of a PSD majorant of the grip's, the stitches' and
-    the layer order's Hessian, independent of x (the grip's exact blocks; k I at both ends of a
-    stitch or layer pair, ≥ their exact H), for preconditioners; None when the cloth has none."""
+    """The per-vertex 3×3 blocks (V, 3, 3) [N/m] of the grip and the links, independent of x, for
+    preconditioners: the grip's exact Hessian blocks, and H (`links`) at both ends of each link,
+    the diagonal blocks of the links' PSD majorant [[H, −H], [−H, H]] (whose off-diagonal blocks
+    the coarse space adds, `physics.coarse_space`); None when the cloth has none."""
     out = None
     if cloth.grip is not None:
         out = grip_blocks(cloth.grip, cloth.num_verts, dtype=cloth.dtype)
-    for pairs in (cloth.stitches, cloth.layers):
-        if pairs is None:
-            continue
-        k = pairs.stiffness.to(cloth.dtype)
-        eye = torch.eye(3, dtype=cloth.dtype, device=k.device)
-        blocks = torch.zeros(cloth.num_verts, 3, 3, dtype=cloth.dtype, device=k.device).index_add_(
-            0, pairs.pairs.reshape(-1), (k[:, None, None] * eye).repeat_interleave(2, dim=0))
+    tied = links(cloth)
+    if tied is not None:
+        blocks = torch.zeros(cloth.num_verts, 3, 3, dtype=cloth.dtype, device=tied.blocks.device).index_add_(
+            0, tied.pairs.reshape(-1), tied.blocks.repeat_interleave(2, dim=0))
         out = blocks if out is None else out + blocks
     return out
