@@ -1,4 +1,5 @@
-"""The collision handler's centroid pass: large faces whose interior dips into the body."""
+"""The collision handler's centroid pass (large faces whose interior dips into the body) and its
+layer pass (an inner piece pushed out must not cross the piece over it)."""
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ import trimesh
 
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model.collision_handler import CollisionHandler
+from physdrape.physics.layers import LayerOrder, layer_energy
 
 RADIUS = 0.1
 
@@ -72,3 +74,42 @@ def test_the_centroid_pass_is_differentiable_and_only_pushes_outward(sphere):
 def test_bad_centroid_margin_is_refused():
     with pytest.raises(ValueError, match="centroid_margin"):
         CollisionHandler(centroid_margin=-1e-3)
+
+
+def _stack(depths: list[float]) -> tuple[torch.Tensor, LayerOrder]:
+    """One vertex per layer over the sphere's pole at RADIUS + depth (innermost first), each
+    pair (outer, the one under it) kept 4 mm apart along the pole's normal."""
+    x = torch.tensor([[0.0, RADIUS + d, 0.0] for d in depths], dtype=torch.float64)
+    pairs = torch.tensor([[k + 1, k] for k in range(len(depths) - 1)])
+    normal = torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64).expand(len(pairs), 3)
+    return x, LayerOrder.build(pairs, normal)
+
+
+def test_the_layer_pass_keeps_a_pushed_inner_piece_under_the_piece_over_it(sphere):
+    """The inner layer dips 3 mm into the body and the middle one lies 4 mm over it: the body
+    push drives the inner one 2 mm past the middle one, which the layer pass pushes out to 4 mm
+    over it again; that reaches the outer one (6 mm over the middle one), pushed in the second
+    pass. Each pair ends at its 4 mm gap, so the layer energy is what it was (zero)."""
+    x, layers = _stack([-3e-3, 1e-3, 7e-3])
+    body_index = torch.zeros(len(x), dtype=torch.int64)
+    handler = CollisionHandler(margin=2e-3).double()
+    with torch.no_grad():
+        plain = handler(x, sphere, body_index)
+        kept = handler(x, sphere, body_index, layers=layers)
+    assert float(layer_energy(plain, layers).sum()) > 1e-3  # not vacuous: the plain handler crosses them
+    torch.testing.assert_close(kept[0], plain[0])  # the body push itself is unchanged
+    torch.testing.assert_close(kept[1:, 1] - kept[:-1, 1], torch.full((2,), 4e-3, dtype=torch.float64), rtol=0,
+                               atol=1e-12)
+    assert float(layer_energy(kept, layers).sum()) < 1e-18
+    assert bool((kept[:, 1] >= plain[:, 1]).all())  # outward only
+
+
+def test_the_layer_pass_leaves_separated_layers_and_existing_crossings_alone(sphere):
+    body_index = torch.zeros(2, dtype=torch.int64)
+    handler = CollisionHandler(margin=2e-3).double()
+    with torch.no_grad():
+        apart, layers = _stack([-3e-3, 2e-2])  # far apart: the inner push does not reach the outer piece
+        torch.testing.assert_close(handler(apart, sphere, body_index, layers=layers),
+                                   handler(apart, sphere, body_index))
+        crossed, layers = _stack([5e-3, 4e-3])  # already crossed, nothing pushed: not the handler's business
+        torch.testing.assert_close(handler(crossed, sphere, body_index, layers=layers), crossed)

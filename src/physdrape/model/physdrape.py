@@ -129,7 +129,8 @@ class PhysDrape(nn.Module):
             x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
                             bodies=batch.bodies, body_index=batch.body_index)
         if cfg.variant.uses_handler:
-            x = self.handler(x, batch.bodies, batch.body_index, faces=batch.garments.faces)
+            x = self.handler(x, batch.bodies, batch.body_index, faces=batch.garments.faces, layers=batch.cloth.layers)
         elif cfg.variant is Variant.POST_COL and not self.training:
-            x = self.handler(x, batch.bodies, batch.body_index, delta=1.0, faces=batch.garments.faces)
+            x = self.handler(x, batch.bodies, batch.body_index, delta=1.0, faces=batch.garments.faces,
+                             layers=batch.cloth.layers)
         return DrapeOutput(x=x, x_gnn=x_gnn, f_hat=f_hat, trace=tuple(trace))

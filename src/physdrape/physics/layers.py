@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 __all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "MIN_LAYER_GAP", "LayerOrder", "layer_energy", "layer_forces",
-           "layer_pair_blocks"]
+           "layer_pair_blocks", "layer_shortfall"]
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
@@ -71,7 +71,7 @@ class LayerOrder:
                             for name in ("pairs", "normal", "gap", "stiffness")))
 
 
-def _shortfall(x: Tensor, layers: LayerOrder) -> Tensor:
+def layer_shortfall(x: Tensor, layers: LayerOrder) -> Tensor:
     """ReLU(δ − n·(x_o − x_i)) per pair [m], (..., P)."""
     d = x[..., layers.pairs[:, 0], :] - x[..., layers.pairs[:, 1], :]
     return (layers.gap.to(x.dtype) - (d * layers.normal.to(x.dtype)).sum(-1)).clamp_min(0.0)
@@ -79,12 +79,12 @@ def _shortfall(x: Tensor, layers: LayerOrder) -> Tensor:
 
 def layer_energy(x: Tensor, layers: LayerOrder) -> Tensor:
     """½ k ReLU(δ − n·(x_o − x_i))² per pair [J], x (..., V, 3) → (..., P)."""
-    return 0.5 * layers.stiffness.to(x.dtype) * _shortfall(x, layers) ** 2
+    return 0.5 * layers.stiffness.to(x.dtype) * layer_shortfall(x, layers) ** 2
 
 
 def layer_forces(x: Tensor, layers: LayerOrder) -> Tensor:
     """f = −∇E_layer on every vertex [N], x (..., V, 3) → (..., V, 3)."""
-    f = (layers.stiffness.to(x.dtype) * _shortfall(x, layers))[..., None] * layers.normal.to(x.dtype)  # on o
+    f = (layers.stiffness.to(x.dtype) * layer_shortfall(x, layers))[..., None] * layers.normal.to(x.dtype)  # on o
     out = torch.zeros_like(x).index_add_(-2, layers.pairs[:, 0], f)
     return out.index_add_(-2, layers.pairs[:, 1], -f)
 
@@ -92,5 +92,5 @@ def layer_forces(x: Tensor, layers: LayerOrder) -> Tensor:
 def layer_pair_blocks(x: Tensor, layers: LayerOrder) -> Tensor:
     """H per pair (P, 3, 3) [N/m]: k n nᵀ where the pair is active, else 0; x (V, 3)."""
     n = layers.normal.to(x.dtype)
-    active = (_shortfall(x, layers) > 0).to(x.dtype) * layers.stiffness.to(x.dtype)
+    active = (layer_shortfall(x, layers) > 0).to(x.dtype) * layers.stiffness.to(x.dtype)
     return active[:, None, None] * n[:, :, None] * n[:, None, :]
