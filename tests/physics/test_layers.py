@@ -126,3 +126,28 @@ def test_layer_order_keeps_the_template_gap_within_bounds():
     torch.testing.assert_close(built.gap, torch.tensor([MIN_LAYER_GAP, 2e-3, DEFAULT_LAYER_GAP], dtype=torch.float64))
     assert built.stiffness.tolist() == [DEFAULT_LAYER_STIFFNESS] * 3
     assert LayerOrder.build(pairs, normal).gap.tolist() == [DEFAULT_LAYER_GAP] * 3
+
+
+@pytest.mark.parametrize("active", [True, False])
+def test_the_links_blocks_majorise_the_stitches_and_layer_pairs_exact_blocks(sheet, active):
+    """The preconditioners' link blocks H (`physics.forces.links`) are ≥ each pair's exact 3×3
+    block, so [[H, −H], [−H, H]] majorises the pair's Hessian; x-independent, the same whether
+    the pairs are active or not."""
+    from test_stitches import make_stitches
+
+    from physdrape.physics.forces import links
+    from physdrape.physics.stitches import stitch_pair_blocks
+
+    x = deformed(sheet, seed=5)
+    layers = make_layers(sheet, x, 5, count=6, active=active)
+    stitches = make_stitches(sheet, x, 6, count=6, taut=active)
+    cloth = replace(Cloth.build(sheet), stitches=stitches, layers=layers)
+    tied = links(cloth)
+    assert torch.equal(tied.pairs, torch.cat([stitches.pairs, layers.pairs]))
+    exact = torch.cat([stitch_pair_blocks(x, stitches), layer_pair_blocks(x, layers)])
+    assert bool((exact.abs().amax(dim=(1, 2)) > 0).all()) == active  # not vacuous where active
+    assert torch.linalg.eigvalsh(tied.blocks - exact).min() > -1e-9 * tied.blocks.abs().max()
+    # a layer pair's block is stiffest along its normal
+    n = layers.normal
+    along = torch.einsum("pi,pij,pj->p", n, tied.blocks[len(stitches.pairs):], n)
+    torch.testing.assert_close(along, layers.stiffness)

@@ -56,6 +56,15 @@ def internal_energy(x: Tensor, cloth: Cloth) -> Tensor:
     return sum(energy_terms(x, cloth).values())
 
 
+#: Tangential share β of a layer pair's preconditioner block k (n nᵀ + β (I − n nᵀ)). The layer
+#: energy resists only the normal approach (its exact block is k n nᵀ), but its pairs are fixed
+#: at X_init and describe the pieces' overlap only while the pieces slide a few centimetres over
+#: each other: a small tangential stiffness in the preconditioner slows their relative sliding
+#: (not their sliding together, which the coarse space's coupling leaves free), and with β = 0
+#: the MakeHuman suits of `bench/garments_stay_on.py` end with pieces crossing in places.
+LAYER_SLIDE_DAMPING = 0.1
+
+
 @dataclass(frozen=True)
 class Links:
     """The vertex pairs that the stitches and the layer order tie, and each pair's coupling.
@@ -63,8 +72,9 @@ class Links:
     Attributes:
         pairs: (L, 2) int64 vertex indices, the stitches' pairs first, then the layer order's.
         blocks: H (L, 3, 3) [N/m], independent of x, with each pair's Hessian ≤ [[H, −H], [−H, H]]:
-            k I for a stitch (≥ its exact block, `physics.stitches`), k n nᵀ for a layer pair (its
-            exact block where the pair is active, `physics.layers`).
+            k I for a stitch (≥ its exact block, `physics.stitches`), k (n nᵀ + β (I − n nᵀ)) for
+            a layer pair (≥ its exact block k n nᵀ where the pair is active, `physics.layers`;
+            β = `LAYER_SLIDE_DAMPING`).
     """
 
     pairs: Tensor
@@ -80,8 +90,10 @@ def links(cloth: Cloth) -> Links | None:
         blocks.append(k[:, None, None] * torch.eye(3, dtype=cloth.dtype, device=k.device))
     if cloth.layers is not None:
         k, n = cloth.layers.stiffness.to(cloth.dtype), cloth.layers.normal.to(cloth.dtype)
+        normal = n[:, :, None] * n[:, None, :]
+        eye = torch.eye(3, dtype=cloth.dtype, device=k.device)
         pairs.append(cloth.layers.pairs)
-        blocks.append(k[:, None, None] * n[:, :, None] * n[:, None, :])
+        blocks.append(k[:, None, None] * (normal + LAYER_SLIDE_DAMPING * (eye - normal)))
     if not pairs:
         return None
     return Links(torch.cat(pairs), torch.cat(blocks))
