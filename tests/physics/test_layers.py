@@ -31,6 +31,8 @@ from physdrape.physics.layers import (
     layer_energy,
     layer_forces,
     layer_pair_blocks,
+    layer_shortfall,
+    push_outer_out,
 )
 
 
@@ -151,3 +153,18 @@ def test_the_links_blocks_majorise_the_stitches_and_layer_pairs_exact_blocks(she
     n = layers.normal
     along = torch.einsum("pi,pij,pj->p", n, tied.blocks[len(stitches.pairs):], n)
     torch.testing.assert_close(along, layers.stiffness)
+
+
+def test_pushing_the_outer_vertices_out_puts_the_layers_in_order_or_within_what_is_allowed(sheet):
+    x = deformed(sheet, seed=7)
+    layers = make_layers(sheet, x, 7, count=8)  # every pair short of its gap by 1 cm
+    assert bool((layer_shortfall(x, layers) > 5e-3).all())
+    pushed = push_outer_out(x, layers)
+    torch.testing.assert_close(layer_shortfall(pushed, layers), torch.zeros(8, dtype=torch.float64), rtol=0,
+                               atol=1e-12)
+    moved = pushed - x
+    outer = layers.pairs[:, 0]
+    assert bool((moved.abs().sum(-1) > 0).sum() == 8) and bool((moved[outer].abs().sum(-1) > 0).all())
+    torch.testing.assert_close(moved[outer], 1e-2 * layers.normal, rtol=0, atol=1e-12)  # along n, by the shortfall
+    allowed = torch.full((8,), 4e-3, dtype=torch.float64)
+    torch.testing.assert_close(layer_shortfall(push_outer_out(x, layers, allowed), layers), allowed, rtol=0, atol=1e-12)

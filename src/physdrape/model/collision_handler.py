@@ -12,11 +12,7 @@ from torch import Tensor, nn
 
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.contact import DEFAULT_MARGIN
-from physdrape.physics.layers import LayerOrder, layer_shortfall
-
-#: Passes of the layer push: a piece pushed out may be the inner piece of another pair (a jacket
-#: over a shirt over trousers), which the next pass then pushes.
-LAYER_PASSES = 3
+from physdrape.physics.layers import LayerOrder, layer_shortfall, push_outer_out
 
 
 class CollisionHandler(nn.Module):
@@ -39,8 +35,7 @@ class CollisionHandler(nn.Module):
     the pieces crossed (the handler runs after the solver, so nothing would undo it). Each outer
     vertex o is pushed out along its pair's normal n by the growth of the pair's shortfall
     ReLU(δ − n·(x_o − x_i)) over its value before the handler, so the handler never adds to the
-    layer-order energy of a pair (an outer vertex in several pairs takes the largest push along
-    their push-weighted mean normal; up to `LAYER_PASSES` passes for layers over layers).
+    layer-order energy of a pair (`physics.layers.push_outer_out`).
 
     Args:
         margin: ε [m]; a vertex ends at least ε outside the body along n when δ ≥ 1.
@@ -76,7 +71,7 @@ class CollisionHandler(nn.Module):
         if faces is not None and self.centroid_margin > 0:
             x = self._push_centroids(x, faces, bodies, body_index)
         if layers is not None and len(layers.pairs):
-            x = _keep_layers(before, x, layers)
+            x = push_outer_out(x, layers, allowed=layer_shortfall(before, layers))
         return x
 
     def _push_centroids(self, x: Tensor, faces: Tensor, bodies: BodySurface, body_index: Tensor) -> Tensor:
@@ -92,17 +87,3 @@ class CollisionHandler(nn.Module):
         direction = F.normalize(torch.zeros_like(x).index_add(0, verts, weighted), dim=1)
         return x + size[:, None] * direction
 
-
-def _keep_layers(before: Tensor, x: Tensor, layers: LayerOrder) -> Tensor:
-    """x with each pair's outer vertex pushed out along n by the growth of the pair's shortfall
-    since `before` (class docstring)."""
-    shortfall = layer_shortfall(before, layers)
-    outer, normal = layers.pairs[:, 0], layers.normal.to(x.dtype)
-    for _ in range(LAYER_PASSES):
-        grow = (layer_shortfall(x, layers) - shortfall).clamp_min(0.0)
-        if not bool((grow > 0).any()):
-            break
-        size = x.new_zeros(x.shape[0]).scatter_reduce(0, outer, grow, "amax", include_self=True)
-        direction = F.normalize(torch.zeros_like(x).index_add(0, outer, grow[:, None] * normal), dim=1)
-        x = x + size[:, None] * direction
-    return x

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 __all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "MIN_LAYER_GAP", "LayerOrder", "layer_energy", "layer_forces",
-           "layer_pair_blocks", "layer_shortfall"]
+           "layer_pair_blocks", "layer_shortfall", "push_outer_out"]
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
@@ -30,6 +30,9 @@ DEFAULT_LAYER_STIFFNESS = 1000.0
 DEFAULT_LAYER_GAP = 4e-3
 #: Least gap [m] of a pair authored closer than `DEFAULT_LAYER_GAP` (`LayerOrder.build`).
 MIN_LAYER_GAP = 1e-3
+#: Passes of `push_outer_out`: a piece pushed out may be the inner piece of another pair (a jacket
+#: over a shirt over trousers), which the next pass then pushes.
+PUSH_PASSES = 3
 
 
 @dataclass(frozen=True)
@@ -94,3 +97,24 @@ def layer_pair_blocks(x: Tensor, layers: LayerOrder) -> Tensor:
     n = layers.normal.to(x.dtype)
     active = (layer_shortfall(x, layers) > 0).to(x.dtype) * layers.stiffness.to(x.dtype)
     return active[:, None, None] * n[:, :, None] * n[:, None, :]
+
+
+def push_outer_out(x: Tensor, layers: LayerOrder, allowed: Tensor | None = None) -> Tensor:
+    """x (V, 3) [m] with each pair's outer vertex pushed out along the pair's normal n until its
+    shortfall ReLU(δ − n·(x_o − x_i)) is at most `allowed` [m] (P,) (None: 0, the layers in
+    order). An outer vertex in several pairs takes the largest push along their push-weighted
+    mean normal; up to `PUSH_PASSES` passes for layers over layers. Not a term of the energy: the
+    collision handler's layer pass, outward only, differentiable in x."""
+    outer, normal = layers.pairs[:, 0], layers.normal.to(x.dtype)
+    for _ in range(PUSH_PASSES):
+        excess = layer_shortfall(x, layers)
+        if allowed is not None:
+            excess = excess - allowed
+        excess = excess.clamp_min(0.0)
+        if not bool((excess > 0).any()):
+            break
+        size = x.new_zeros(x.shape[0]).scatter_reduce(0, outer, excess, "amax", include_self=True)
+        direction = torch.nn.functional.normalize(torch.zeros_like(x).index_add(0, outer, excess[:, None] * normal),
+                                                  dim=1)
+        x = x + size[:, None] * direction
+    return x
