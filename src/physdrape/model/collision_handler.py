@@ -86,4 +86,3 @@ class CollisionHandler(nn.Module):
         weighted = (push[hit, None] * query.normal[hit]).repeat_interleave(3, dim=0)
         direction = F.normalize(torch.zeros_like(x).index_add(0, verts, weighted), dim=1)
         return x + size[:, None] * direction
-

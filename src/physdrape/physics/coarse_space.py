@@ -10,24 +10,24 @@ adds the motions of a few hundred smooth patches per garment, solved together:
     z_c = P (Pᵀ K P)⁻¹ Pᵀ r,
 
 with K the PSD strain-Hessian majorant of every face (`physics.majorant.pair_blocks`), the
-solver's per-vertex blocks (contact, grip, the links' diagonal blocks: `physics.forces.extra_blocks`)
-and the links' coupling (the off-diagonal blocks −H of the stitches' and layer pairs' majorant
-[[H, −H], [−H, H]], `physics.forces.links`), and P a smoothed-aggregation prolongation (`topology.aggregates`,
-`topology.smoothed_prolongation`): patch indicators averaged over mesh neighbours, so a patch
-moves as a smooth bump and no kink is left at its border (raw indicators leave kinks that the
-fine level then has to bend out). The links' coupling matters for a multi-piece garment: without
-it a stitched or layered vertex's H acts in the coarse space as a spring to a fixed point, and
-the pieces cannot slide together over the body; with it only their relative motion is stiff.
-Bending is left out of Pᵀ K P: smooth patches barely bend,
-and its hinge blocks (16 vertex pairs each) would more than double the gather for little change
-in the correction.
+solver's per-vertex blocks (contact, grip and the links' diagonal blocks,
+`physics.forces.extra_blocks`) and the links' coupling (the off-diagonal blocks −H of the
+stitches' and layer pairs' majorant [[H, −H], [−H, H]], `physics.forces.links`), and P a
+smoothed-aggregation prolongation (`topology.aggregates`, `topology.smoothed_prolongation`):
+patch indicators averaged over mesh neighbours, so a patch moves as a smooth bump and no kink is
+left at its border (raw indicators leave kinks that the fine level then has to bend out). The
+links' coupling matters for a multi-piece garment: without it a stitched or layered vertex's H
+acts in the coarse space as a spring to a fixed point, and the pieces cannot slide together over
+the body; with it only their relative motion is stiff. Bending is left out of Pᵀ K P: smooth
+patches barely bend, and its hinge blocks (16 vertex pairs each) would more than double the
+gather for little change in the correction.
 
 Numerics: patches and P depend on a garment's topology only and are cached. K (in the cloth's
-dtype) is gathered into 3×3 blocks of the vertex pairs that share a face or a link. Pᵀ K P is linear in
-those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so a
-garment's topology and links fix a sparse Galerkin operator G (coarse blocks × pairs), built once and
-cached, and each `factor` forms Pᵀ K P as one sparse product G · K in float64 for all the
-batch's garments of that topology, scattered straight into each garment's dense coarse matrix,
+dtype) is gathered into 3×3 blocks of the vertex pairs that share a face or a link. Pᵀ K P is
+linear in those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so
+a garment's topology and links fix a sparse Galerkin operator G (coarse blocks × pairs), built
+once and cached, and each `factor` forms Pᵀ K P as one sparse product G · K in float64 for all
+the batch's garments of that topology, scattered straight into each garment's dense coarse matrix,
 which is then factorised (dense Cholesky). The correction is
 differentiable in r (P and the factor are constants).
 
@@ -325,8 +325,8 @@ class CoarseSpace:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
         blocks added to the strain majorant's (the solver's contact blocks and
         `physics.forces.extra_blocks`), or None. The cloth's links add their coupling −H between
-        the two vertices of each link; their diagonal blocks H are `extra_blocks`', which must
-        then be among vertex_blocks for K to be PSD."""
+        the two vertices of each link; their diagonal blocks H are part of `extra_blocks`, which
+        vertex_blocks must then include for K to be PSD."""
         s = self._s
         with torch.no_grad():
             blocks = pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
