@@ -37,7 +37,7 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
-from physdrape.physics.layers import LayerOrder
+from physdrape.physics.layers import LayerOrder, push_outer_out
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 from physdrape.threads import parallel_map
 
@@ -233,15 +233,19 @@ class DrapePipeline:
         bodies = posed.surface(self.dtype, device)
         body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)
         x_init = torch.cat(x_init)
+        layers = self._layers(jobs, batch, x_init, bodies)
+        if layers is not None:
+            # skinning moves overlapping pieces apart or through each other where the pose bends
+            # them differently: X_init starts with its pieces in their layer order
+            with torch.no_grad():
+                x_init = push_outer_out(x_init, layers)
+            cloth = replace(cloth, layers=layers)
         grip = self._grip(jobs, batch, x_init, bodies)
         if grip is not None:
             cloth = replace(cloth, grip=grip)
         stitches = self._stitches(jobs, batch)
         if stitches is not None:
             cloth = replace(cloth, stitches=stitches)
-        layers = self._layers(jobs, batch, x_init, bodies)
-        if layers is not None:
-            cloth = replace(cloth, layers=layers)
         return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
 
     def _x_inits(self, jobs: Sequence[Job], posed: PosedBodies) -> dict[int, Tensor]:

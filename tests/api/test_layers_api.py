@@ -11,7 +11,7 @@ import torch
 from physdrape.api import DrapeError
 from physdrape.garments.numpy_geometry import BodyDistance
 from physdrape.garments.pieces import garment_parts
-from physdrape.physics.layers import DEFAULT_LAYER_GAP, MIN_LAYER_GAP
+from physdrape.physics.layers import DEFAULT_LAYER_GAP, MIN_LAYER_GAP, layer_energy
 from physdrape.pipeline import Job
 
 SUIT = Path(__file__).resolve().parents[3] / "shared" / "data" / "makehuman_cc0" / "male_casualsuit04" / "male_casualsuit04.mhclo"
@@ -42,6 +42,15 @@ def test_pipeline_layers_the_tee_over_the_trousers(draper):
     separation = d[pairs[:, 0]] - d[pairs[:, 1]]
     np.testing.assert_allclose(layers.gap.numpy(), np.clip(separation, MIN_LAYER_GAP, DEFAULT_LAYER_GAP))
     assert (layers.gap < DEFAULT_LAYER_GAP).any() and (layers.gap == DEFAULT_LAYER_GAP).any()
+    # X_init starts with the outer piece pushed out over the inner one: the skinned pieces cross
+    skinned = inp.x_init.clone()
+    skinned[offset:] = pipeline.x_init(suit, state, 0).to(skinned.dtype)
+    before, after = float(layer_energy(skinned, layers).sum()), float(layer_energy(inp.x_init, layers).sum())
+    assert before > 1e-3 and after < 0.05 * before, (before, after)
+    outer = torch.zeros(len(skinned), dtype=torch.bool)
+    outer[layers.pairs[:, 0]] = True
+    moved = (inp.x_init - skinned).norm(dim=-1) > 0
+    assert bool(moved.any()) and not bool((moved & ~outer).any())  # only outer vertices, none of the tee's
     assert pipeline.build([Job(suit, 0, material)], state).cloth.layers is None
 
 

@@ -42,9 +42,11 @@ def test_mhclo_rest_is_the_template_on_the_canonical_body_and_follows_the_waist(
 @needs_suit
 def test_drape_sizing_fit_and_fixed(draper):
     heavy = {"weight": 0.9}
-    [fit] = draper.drape(str(SUIT), shape=heavy, sizing="fit", steps=0)
-    [fixed] = draper.drape(str(SUIT), shape=heavy, sizing="fixed", steps=0)
-    [default] = draper.drape(str(SUIT), shape=heavy, steps=0)
+    # the layer order off: its push of the outer pieces over the inner ones at X_init would add
+    # strain of its own to both
+    [fit] = draper.drape(str(SUIT), shape=heavy, sizing="fit", steps=0, layers="off")
+    [fixed] = draper.drape(str(SUIT), shape=heavy, sizing="fixed", steps=0, layers="off")
+    [default] = draper.drape(str(SUIT), shape=heavy, steps=0, layers="off")
     np.testing.assert_array_equal(default.x_init, fit.x_init)  # .mhclo: fit by default
     assert np.abs(fit.x_init - fixed.x_init).max() > 5e-3
     # the fixed garment is held to the template's size on the heavy body: its X_init is stretched

@@ -116,7 +116,8 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
     for d in results["row_definitions"].values():
         out.append(f"- **{d['label']}**: {d['definition']}" + (f" (T = {d['steps']})" if d["steps"] else ""))
     out.append("- **X_init**: the kinematic initialisation every row starts from (skinning transfer, then contact-aware "
-               "strain limiting of the edges to 1.02 x rest), for context. Every model row's wall time includes it.")
+               "strain limiting of the edges to 1.02 x rest; a multi-piece garment's outer pieces then pushed out over "
+               "the inner ones), for context. Every model row's wall time includes it.")
     out.append("- **Skinned**: the skinning transfer with only the local limit of its artefacts (edges ≤ 1.5 x rest): "
                "where the oracle starts (a classical solver gets the plain kinematic start, not PhysDrape's pull-back).")
     if has_oracle:

@@ -103,8 +103,10 @@ def push_outer_out(x: Tensor, layers: LayerOrder, allowed: Tensor | None = None)
     """x (V, 3) [m] with each pair's outer vertex pushed out along the pair's normal n until its
     shortfall ReLU(δ − n·(x_o − x_i)) is at most `allowed` [m] (P,) (None: 0, the layers in
     order). An outer vertex in several pairs takes the largest push along their push-weighted
-    mean normal; up to `PUSH_PASSES` passes for layers over layers. Not a term of the energy: the
-    collision handler's layer pass, outward only, differentiable in x."""
+    mean normal; up to `PUSH_PASSES` passes for layers over layers. Not a term of the energy: a
+    geometric step of the kinematic start (`pipeline`, allowed None) and of the collision
+    handler (allowed: the shortfall before its push); outward only, differentiable in x."""
+
     outer, normal = layers.pairs[:, 0], layers.normal.to(x.dtype)
     for _ in range(PUSH_PASSES):
         excess = layer_shortfall(x, layers)
