@@ -13,8 +13,12 @@ A drape's physics measures stretch against the garment's rest shape. Two answers
 `MhcloSizer` carries the binding over to the remeshed template: each template vertex is tied to
 its closest point on the original `.mhclo` mesh on the canonical body (a triangle and barycentric
 coordinates), and follows that point's displacement when the garment is refitted onto another
-body; like `load_mhclo`, vertices inside the target body or closer than the margin are then
-pushed out to it.
+body. Where neighbouring template vertices are tied to parts of the original mesh that move
+differently (a collar's fold on a body far from the canonical one), a face can collapse to a
+sliver, whose rest shape would make it the stiffest element of the drape by orders of magnitude:
+the displacement is smoothed over the vertices of such faces until each keeps at least
+`MIN_AREA_RATIO` of its template area (`relax_collapsed_faces`). Like `load_mhclo`, vertices
+inside the target body or closer than the margin are then pushed out to it.
 """
 
 from __future__ import annotations
@@ -31,9 +35,14 @@ from scipy.spatial import cKDTree
 from physdrape.body.anny_body import get_anny_body
 from physdrape.garments.mhclo import fit_mhclo, read_mhclo, resolve_body_penetration
 from physdrape.geometry.closest_point import closest_point_on_triangle
-from physdrape.geometry.mesh import read_obj
+from physdrape.geometry.mesh import face_areas, read_obj
+from physdrape.geometry.topology import undirected_edges, vertex_adjacency
 
-__all__ = ["MhcloSizer", "Sizing", "default_sizing", "triangle_coordinates"]
+__all__ = ["MIN_AREA_RATIO", "MhcloSizer", "Sizing", "default_sizing", "relax_collapsed_faces",
+           "triangle_coordinates"]
+
+#: Least share of its template area a face keeps in a refitted rest shape (`relax_collapsed_faces`).
+MIN_AREA_RATIO = 0.3
 
 
 class Sizing(str, enum.Enum):
@@ -119,10 +128,35 @@ class MhcloSizer:
         displacement = fit_mhclo(binding, hm08) - canonical  # (Vo, 3)
         corners = obj_faces[face]  # (V, 3)
         x = self.template_verts + (displacement[corners] * bary[:, :, None]).sum(1)
+        x = relax_collapsed_faces(self.template_verts, x, self.faces)
         anny = get_anny_body()
         x, _ = resolve_body_penetration(x, self.faces, hm08[anny.hm08_ids.numpy()], anny.faces.numpy(),
                                         margin=self.margin)
         return x
+
+
+def relax_collapsed_faces(template: np.ndarray, x: np.ndarray, faces: np.ndarray, *,
+                          rounds: int = 50) -> np.ndarray:
+    """x (V, 3) [m], a moved copy of `template` (V, 3), with its displacement x − template
+    replaced by the mean of the neighbours' at the vertices of every face that kept less than
+    `MIN_AREA_RATIO` of its template area, and their neighbours (Jacobi rounds until no face is
+    below, at most `rounds`): the template's own shape comes back there, carried by the smooth
+    displacement around it. Faces away from the collapsed ones keep theirs exactly."""
+    template, faces = np.asarray(template, np.float64), np.asarray(faces, np.int64)
+    rest = np.maximum(face_areas(template, faces), np.finfo(np.float64).tiny)
+    disp = np.array(x, np.float64) - template
+    adjacency = vertex_adjacency(len(template), undirected_edges(faces))
+    degree = np.maximum(np.asarray(adjacency.sum(1)).ravel(), 1.0)
+    for _ in range(rounds):
+        collapsed = face_areas(template + disp, faces) < MIN_AREA_RATIO * rest
+        if not collapsed.any():
+            break
+        region = np.zeros(len(template), bool)
+        region[faces[collapsed].ravel()] = True
+        region |= (adjacency @ region.astype(np.float64)) > 0  # and their neighbours
+        mean = (adjacency @ disp) / degree[:, None]
+        disp[region] = mean[region]
+    return template + disp
 
 
 def _hm08(shape: torch.Tensor | None) -> np.ndarray:
