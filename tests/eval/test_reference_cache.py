@@ -20,6 +20,8 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
 from physdrape.physics.contact import DEFAULT_MARGIN, DEFAULT_STIFFNESS
+from physdrape.physics.layers import LayerOrder
+from physdrape.physics.stitches import Stitches
 
 CONTACT = Contact(DEFAULT_STIFFNESS, DEFAULT_MARGIN)
 CONFIG = EvalConfig(oracle_max_iters=3, oracle_budget_s=60.0)  # max_iters stops it: deterministic
@@ -69,6 +71,14 @@ def test_a_changed_setting_material_body_or_start_misses():
         reference_key(batch, batch.x_init + 1e-6, settings),
         reference_key(sheet_on_box(lift=0.51), batch.x_init, settings),  # the garment's rest positions
     ]
+    # the grip's, the stitches' and the layer order's terms: the anchors, stiffnesses, normals
+    layered = replace(batch, cloth=replace(batch.cloth, layers=LayerOrder.build(
+        torch.tensor([[0, 1]]), torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64))))
+    moved = replace(layered, cloth=replace(layered.cloth, layers=LayerOrder.build(
+        torch.tensor([[0, 1]]), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64))))
+    stitched = replace(batch, cloth=replace(batch.cloth, stitches=Stitches(
+        torch.tensor([[0, 2]]), torch.zeros(1, dtype=torch.float64), torch.ones(1, dtype=torch.float64))))
+    others += [reference_key(b, batch.x_init, settings) for b in (layered, moved, stitched)]
     assert len({key, *others}) == len(others) + 1
 
 

@@ -4,7 +4,7 @@ That oracle run does not involve the model, so its result serves every checkpoin
 the same instance: a re-run with another checkpoint only runs the model rows and the refinement
 from the model's drape. An entry is named by a digest (`reference_key`) of everything the result
 depends on: the start positions, the garment (rest positions, faces and every per-element
-coefficient of its material, i.e. the whole `Cloth`), the posed body (vertices, faces) and the
+coefficient of its material, and its grip, stitches and layer order: the whole `Cloth`), the posed body (vertices, faces) and the
 oracle's settings (contact model, stiffness, margin, tolerance, iteration cap, wall-time budget,
 dtype), with `CACHE_FORMAT` and the physdrape version. Change any of them and the entry is
 missed; `relax`'s code is not in the digest: bump `CACHE_FORMAT` when its results change.
@@ -21,7 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import warnings
-from dataclasses import fields
+from dataclasses import fields, is_dataclass
 from pathlib import Path
 
 import safetensors.torch
@@ -56,6 +56,10 @@ def reference_key(batch: DrapeInput, start: torch.Tensor, settings: dict) -> str
         value = getattr(batch.cloth, f.name)
         if isinstance(value, torch.Tensor):
             tensors[f"cloth.{f.name}"] = value
+        elif is_dataclass(value):  # the grip, stitches and layer order: terms of the energy
+            for g in fields(value):
+                if isinstance(getattr(value, g.name), torch.Tensor):
+                    tensors[f"cloth.{f.name}.{g.name}"] = getattr(value, g.name)
     for name in sorted(tensors):
         _update(digest, name, tensors[name])
     return digest.hexdigest()[:32]
