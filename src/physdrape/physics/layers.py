@@ -106,7 +106,6 @@ def push_outer_out(x: Tensor, layers: LayerOrder, allowed: Tensor | None = None)
     mean normal; up to `PUSH_PASSES` passes for layers over layers. Not a term of the energy: a
     geometric step of the kinematic start (`pipeline`, allowed None) and of the collision
     handler (allowed: the shortfall before its push); outward only, differentiable in x."""
-
     outer, normal = layers.pairs[:, 0], layers.normal.to(x.dtype)
     for _ in range(PUSH_PASSES):
         excess = layer_shortfall(x, layers)
