@@ -3,10 +3,10 @@
 That oracle run does not involve the model, so its result serves every checkpoint evaluated on
 the same instance: a re-run with another checkpoint only runs the model rows and the refinement
 from the model's drape. An entry is named by a digest (`reference_key`) of everything the result
-depends on: the start positions, the garment (rest positions, faces and every per-element
-coefficient of its material, and its grip, stitches and layer order: the whole `Cloth`), the posed body (vertices, faces) and the
-oracle's settings (contact model, stiffness, margin, tolerance, iteration cap, wall-time budget,
-dtype), with `CACHE_FORMAT` and the physdrape version. Change any of them and the entry is
+depends on: the start positions, the garment (rest positions, faces, every per-element
+coefficient of its material, its grip, stitches and layer order: the whole `Cloth`), the posed
+body (vertices, faces) and the oracle's settings (contact model, stiffness, margin, tolerance,
+iteration cap, wall-time budget, dtype), with `CACHE_FORMAT` and the physdrape version. Change any of them and the entry is
 missed; `relax`'s code is not in the digest: bump `CACHE_FORMAT` when its results change.
 
 An entry is two files: ``<key>.safetensors`` (the relaxed positions x [m], (V, 3) float64) and
