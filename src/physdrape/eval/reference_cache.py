@@ -6,8 +6,9 @@ from the model's drape. An entry is named by a digest (`reference_key`) of every
 depends on: the start positions, the garment (rest positions, faces, every per-element
 coefficient of its material, its grip, stitches and layer order: the whole `Cloth`), the posed
 body (vertices, faces) and the oracle's settings (contact model, stiffness, margin, tolerance,
-iteration cap, wall-time budget, dtype), with `CACHE_FORMAT` and the physdrape version. Change any of them and the entry is
-missed; `relax`'s code is not in the digest: bump `CACHE_FORMAT` when its results change.
+iteration cap, wall-time budget, dtype), with `CACHE_FORMAT` and the physdrape version. Change
+any of them and the entry is missed; `relax`'s code is not in the digest: bump `CACHE_FORMAT`
+when its results change.
 
 An entry is two files: ``<key>.safetensors`` (the relaxed positions x [m], (V, 3) float64) and
 ``<key>.json`` (the record of the run: iterations, converged, reason, residual, wall time,
