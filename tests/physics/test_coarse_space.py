@@ -102,6 +102,42 @@ def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment(linked):
     np.testing.assert_allclose(z.numpy().reshape(-1), expected, rtol=1e-8, atol=1e-10 * np.abs(expected).max())
 
 
+def test_the_band_factorisation_equals_the_dense_one_and_the_patches_make_a_narrow_band():
+    """The CPU factorises each garment's coarse matrix in band storage (LAPACK), CUDA the dense
+    matrix: on the same batch (with links) both give the same correction, and the patches are
+    numbered so that the band is narrower than the matrix (or the band would gain nothing)."""
+    from physdrape.physics.coarse_space import _BatchStructure, _galerkin_operator, _garment_prolongation
+
+    batch, cloth, x = _batch()
+    cloth = _linked(cloth, batch)
+    extra = _contact_blocks(cloth.num_verts) + extra_blocks(cloth)
+    band = CoarseSpace(cloth)
+    assert band._s.banded
+    dense = CoarseSpace(cloth)
+    tied = links(cloth).pairs.numpy()
+    counts = [tuple(torch.bincount(owner, minlength=cloth.num_garments).tolist())
+              for owner in (cloth.vert_garment, cloth.face_garment)]
+    dense._s = _BatchStructure.build(cloth.faces.numpy(), *counts, tied, 2, 2, cloth.device, banded=False)
+    r = torch.randn(cloth.num_verts, 3, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    for coarse in (band, dense):
+        coarse.factor(x, extra)
+    expected = dense.solve(r)
+    torch.testing.assert_close(band.solve(r), expected, rtol=1e-9, atol=1e-12 * float(expected.abs().max()))
+    # a sheet whose vertices are numbered at random, as a garment file may number them
+    verts, faces = grid_sheet(40, 30, width=0.8, height=0.6)
+    order = np.random.default_rng(0).permutation(len(verts))
+    new_id = np.argsort(order)
+    sheet = Garment.from_mesh(verts[order], new_id[faces], dtype=torch.float64)
+    structure = CoarseSpace(Cloth.build(sheet))._s
+    [(c0, c1)], [width] = structure.coarse_ranges, structure.band_widths
+    faces = sheet.faces.numpy()
+    pairs = np.unique(np.repeat(faces, 3, axis=1).reshape(-1) * sheet.num_verts + np.tile(faces, (1, 3)).reshape(-1))
+    patches = _garment_prolongation(faces, sheet.num_verts, 2, 2)
+    _, blocks = _galerkin_operator(patches, pairs // sheet.num_verts, pairs % sheet.num_verts)
+    as_aggregated = 3 * np.abs(blocks // patches.shape[1] - blocks % patches.shape[1]).max() + 2
+    assert c1 - c0 > 150 and width < min(as_aggregated, c1 - c0) / 3, (width, as_aggregated, c1 - c0)
+
+
 def test_coarse_correction_is_differentiable_in_the_forces_and_needs_a_factor():
     _, cloth, x = _batch()
     coarse = CoarseSpace(cloth)

@@ -27,14 +27,17 @@ dtype) is gathered into 3×3 blocks of the vertex pairs that share a face or a l
 linear in those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so
 a garment's topology and links fix a sparse Galerkin operator G (coarse blocks × pairs), built
 once and cached, and each `factor` forms Pᵀ K P as one sparse product G · K in float64 for all
-the batch's garments of that topology, scattered straight into each garment's dense coarse matrix,
-which is then factorised (dense Cholesky). The correction is
-differentiable in r (P and the factor are constants).
+the batch's garments of that topology, scattered straight into each garment's coarse matrix,
+which is then factorised by Cholesky. A patch couples only to the patches near it, and the
+patches are numbered (reverse Cuthill–McKee) so that those couplings lie in a band about the
+diagonal: on the CPU the matrix is assembled and factorised in band storage (LAPACK's pbtrf and
+pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense (cuSOLVER), where a
+few hundred unknowns cost little either way. The correction is differentiable in r (P and the factor are constants).
 
 Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
 the Galerkin product, the factorisation (each garment's coarse system is small, at most
 3·MAX_PATCHES unknowns) and the correction `solve` (every solver step), with P, G and the
-factors held there.
+factors held there (the band factors as NumPy arrays).
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import torch
+from scipy.linalg import lapack
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 from torch import Tensor
 
 from physdrape.geometry import topology
@@ -61,8 +66,8 @@ __all__ = ["CoarseSpace"]
 #: raised ×100 until the factorisation succeeds.
 REGULARIZATION = 1e-6
 
-#: Most patches of one garment: a larger garment gets more coarsening levels, so that its dense
-#: coarse factor stays small (600 patches: an 1,800 × 1,800 Cholesky per refresh).
+#: Most patches of one garment: a larger garment gets more coarsening levels, so that its coarse
+#: factor stays small (600 patches: 1,800 unknowns per refresh).
 MAX_PATCHES = 600
 
 def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smoothing: int) -> sp.csr_matrix:
@@ -79,26 +84,85 @@ def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smooth
     return topology.smoothed_prolongation(edges, num_verts, label, smoothing)
 
 
-def _regularized_cholesky(block: Tensor) -> Tensor:
-    """Cholesky factor of block + r·mean(diag)·I, r = REGULARIZATION, raised ×100 until it factorises
-    (a float32 K rounds its near-null rigid modes to slightly negative). A block without stiffness
-    (a garment of one patch, free of the body, moves rigidly at no cost) is regularised with
+def _regularized(matrix: Tensor, diagonal: Tensor, factorise):
+    """factorise() of a symmetric matrix after adding r·mean(diag) to its diagonal, r =
+    REGULARIZATION raised ×100 until it factorises (a float32 K rounds its near-null rigid modes to
+    slightly negative); factorise returns None where it does not. A matrix without stiffness (a
+    garment of one patch, free of the body, moves rigidly at no cost) is regularised with
     mean(diag) = 1: its correction is then a long rigid move that the solver's step clip and line
-    search shorten like any other. `block` is a scratch copy: its diagonal is overwritten."""
-    if not bool(torch.isfinite(block.sum())):  # a sum is finite only if every entry is
+    search shorten like any other. `matrix` holds the entries (dense or band storage, with
+    `diagonal` a view of its diagonal); it is a scratch copy: its diagonal is overwritten."""
+    if not bool(torch.isfinite(matrix.sum())):  # a sum is finite only if every entry is
         raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
-    diagonal = block.diagonal()
     original = diagonal.clone()
     scale = original.mean()
     if not bool(scale > 0):  # no stiffness at all (a lone patch moving freely): any scale regularises it
-        scale = torch.ones((), dtype=block.dtype, device=block.device)
+        scale = torch.ones((), dtype=matrix.dtype, device=matrix.device)
     for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
         diagonal.copy_(original + REGULARIZATION * 100.0 ** attempt * scale)
-        chol, info = torch.linalg.cholesky_ex(block)
-        if int(info) == 0:
-            return chol
+        factor = factorise()
+        if factor is not None:
+            return factor
     raise ValueError("CoarseSpace.factor: the coarse stiffness is not positive semi-definite even with a "
                      "regularisation of its mean diagonal (K must be a PSD majorant)")
+
+
+def _regularized_cholesky(block: Tensor) -> Tensor:
+    """Dense Cholesky factor L of a regularised (`_regularized`) block (n, n), on any device."""
+    def factorise():
+        chol, info = torch.linalg.cholesky_ex(block)
+        return chol if int(info) == 0 else None
+
+    return _regularized(block, block.diagonal(), factorise)
+
+
+def _regularized_band_cholesky(band: Tensor) -> np.ndarray:
+    """Band Cholesky factor (LAPACK pbtrf, lower) of a regularised (`_regularized`) symmetric band
+    matrix given as band (n, w + 1) on the CPU, band[j, k] = A[j + k, j] (zero past the end):
+    returned as LAPACK's (w + 1, n) band storage, what `_band_solve` reads."""
+    lower = band.numpy().T  # (w + 1, n), Fortran order: LAPACK's storage without a copy
+
+    def factorise():
+        chol, info = lapack.dpbtrf(lower, lower=1)
+        return chol if info == 0 else None
+
+    return _regularized(band, band[:, 0], factorise)
+
+
+def _band_solve(rhs: Tensor, factors: list[np.ndarray], ranges: list[tuple[int, int]]) -> Tensor:
+    """A⁻¹ rhs (C, 1) float64 on the CPU for the block-diagonal A of the garments' band factors."""
+    out = torch.empty_like(rhs)
+    values = rhs.detach().numpy()
+    for (c0, c1), chol in zip(ranges, factors):
+        out[c0:c1] = torch.from_numpy(lapack.dpbtrs(chol, values[c0:c1], lower=1)[0])
+    return out
+
+
+class _BandSolve(torch.autograd.Function):
+    """`_band_solve`, differentiable in rhs (A is symmetric: the backward is the same solve)."""
+
+    @staticmethod
+    def forward(ctx, rhs: Tensor, factors: list, ranges: list) -> Tensor:
+        ctx.factors, ctx.ranges = factors, ranges
+        return _band_solve(rhs, factors, ranges)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        return _band_solve(grad.contiguous(), ctx.factors, ctx.ranges), None, None
+
+
+def _band_order(blocks: np.ndarray, patches: int) -> np.ndarray:
+    """A numbering of the patches (new → old) under which the coarse blocks (keys I · patches + J)
+    lie close to the diagonal: reverse Cuthill–McKee's, or the aggregation's own (a breadth-first
+    layering already) where that is narrower."""
+    rows, cols = blocks // patches, blocks % patches
+    graph = sp.csr_matrix((np.ones(len(blocks)), (rows, cols)), shape=(patches, patches))
+    order = reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.int64)
+    new = np.empty_like(order)
+    new[order] = np.arange(patches)
+    if np.abs(new[rows] - new[cols]).max(initial=0) < np.abs(rows - cols).max(initial=0):
+        return order
+    return np.arange(patches)
 
 
 def _galerkin_operator(prolong: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -137,11 +201,12 @@ def _vertex_pairs(faces: np.ndarray, num_verts: int,
 
 @dataclass(frozen=True)
 class _GarmentGalerkin:
-    """One garment topology's coarse space: P (V, patches), its vertex pairs (the pair of each
-    face's corner pair (F, 9), of each vertex with itself (V,) and of each link both ways (L, 2),
-    numbered in ascending key order),
-    its Galerkin operator G (coarse blocks, pairs) and where each entry (a, b) of each coarse block
-    (I, J) goes in its dense coarse matrix, row-major: (3 I + a) · 3 patches + 3 J + b."""
+    """One garment topology's coarse space: P (V, patches), its patches numbered so that the coarse
+    matrix is banded (`_band_order`), its vertex pairs (the pair of each face's corner pair (F, 9),
+    of each vertex with itself (V,) and of each link both ways (L, 2), numbered in ascending key
+    order), its Galerkin operator G (coarse blocks, pairs), where each entry (a, b) of each coarse
+    block (I, J) goes in its dense coarse matrix, row-major: (3 I + a) · 3 patches + 3 J + b, and
+    that matrix's half-bandwidth."""
 
     prolong: sp.csr_matrix
     num_pairs: int
@@ -150,6 +215,7 @@ class _GarmentGalerkin:
     pair_of_link: np.ndarray
     operator: sp.csr_matrix
     destination: np.ndarray
+    bandwidth: int  # entries (r, c) of the coarse matrix with |r − c| > bandwidth are zero
 
 
 #: Garment coarse spaces by topology, the most recently used kept (G of a 3k-vertex garment is
@@ -173,11 +239,19 @@ def _garment_galerkin(faces: np.ndarray, num_verts: int, linked: np.ndarray, lev
             itself = np.searchsorted(pairs, np.arange(num_verts, dtype=np.int64) * (num_verts + 1))
             operator, blocks = _galerkin_operator(prolong, pairs // num_verts, pairs % num_verts)
             patches = prolong.shape[1]
+            # patches renumbered so that the coarse matrix is banded (the correction does not
+            # depend on their numbering): G's row of block (I, J) is that of (new I, new J)
+            order = _band_order(blocks, patches)
+            new = np.empty_like(order)
+            new[order] = np.arange(patches)
+            prolong = prolong[:, order].tocsr()
+            blocks = new[blocks // patches] * patches + new[blocks % patches]
+            bandwidth = 3 * int(np.abs(blocks // patches - blocks % patches).max(initial=0)) + 2
             row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
             col = 3 * (blocks % patches)[:, None] + np.arange(3)
             destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
             _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, link_pairs,
-                                              operator, destination)
+                                              operator, destination, min(bandwidth, 3 * patches - 1))
             while len(_GALERKIN) > _GALERKIN_SIZE:
                 _GALERKIN.popitem(last=False)
         _GALERKIN.move_to_end(key)
@@ -214,15 +288,15 @@ class _Group:
 class _BatchStructure:
     """What a packed batch's coarse space keeps of its topology, on the cloth's device: P and Pᵀ
     (sparse CSR, float64), where each face's corner-pair blocks of K go and each link's (both
-    ways, in the order of `physics.forces.links`), the Galerkin operator of
-    each distinct garment topology with where its products go in the garments' dense coarse
-    matrices (one flat buffer, garment after garment), and each garment's coarse dofs and place in
-    that buffer."""
+    ways, in the order of `physics.forces.links`), the Galerkin operator of each distinct garment
+    topology with where its products go in the garments' coarse matrices (one flat buffer,
+    garment after garment; in band storage where `banded`), and each garment's coarse dofs and
+    place in that buffer."""
 
     num_patches: int
     coarse_ranges: list[tuple[int, int]]  # coarse dofs [c0, c1) of each garment
-    matrix_offsets: list[int]  # where each garment's (c1 - c0)² dense coarse matrix starts in the buffer
-    buffer_size: int  # all garments' dense coarse matrices
+    matrix_offsets: list[int]  # where each garment's coarse matrix (dense or band) starts in the buffer
+    buffer_size: int  # all garments' coarse matrices
     num_pairs: int
     pair_of_corner: Tensor
     pair_of_vertex: Tensor
@@ -230,10 +304,12 @@ class _BatchStructure:
     groups: list[_Group]
     prolong: Tensor  # P, sparse CSR (V, patches)
     restrict: Tensor  # Pᵀ, sparse CSR (patches, V)
+    banded: bool  # the buffer holds each garment's band (n, w + 1), band[j, k] = A[j + k, j], not A
+    band_widths: list[int]  # w of each garment
 
     @staticmethod
     def build(faces: np.ndarray, vert_counts: tuple[int, ...], face_counts: tuple[int, ...], linked: np.ndarray,
-              levels: int, smoothing: int, device: torch.device) -> _BatchStructure:
+              levels: int, smoothing: int, device: torch.device, banded: bool) -> _BatchStructure:
         garments, coarse_ranges, matrix_offsets, pair_starts = [], [], [], []
         v0, f0, c0, offset, p0 = 0, 0, 0, 0, 0
         starts = np.cumsum((0, *vert_counts))
@@ -256,6 +332,13 @@ class _BatchStructure:
             pair_starts.append(p0)  # the batch numbers its pairs garment after garment
             c0, offset, p0 = c0 + patches, offset + (3 * patches) ** 2, p0 + garment.num_pairs
             v0, f0 = v0 + nv, f0 + nf
+        # The buffer holds each garment's band (garment after garment; the upper triangle's entries
+        # go to its last slot, which nothing reads) or its dense matrix.
+        widths = [g.bandwidth for g in garments]
+        if banded:
+            sizes = [(b - a) * (w + 1) for (a, b), w in zip(coarse_ranges, widths)]
+            matrix_offsets = np.cumsum([0, *sizes[:-1]]).tolist() if sizes else []
+            offset = int(sum(sizes))
         members: dict[int, list[int]] = {}
         for g, garment in enumerate(garments):
             members.setdefault(id(garment), []).append(g)
@@ -263,7 +346,14 @@ class _BatchStructure:
         for indices in members.values():
             garment = garments[indices[0]]
             rows = np.stack([np.arange(pair_starts[g], pair_starts[g] + garment.num_pairs) for g in indices])
-            destination = np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + garment.destination
+            local = garment.destination
+            if banded:
+                n = 3 * garment.prolong.shape[1]
+                r, c = local // n, local % n
+                local = np.where(r >= c, c * (garment.bandwidth + 1) + (r - c), -1)
+            destination = np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + local
+            if banded:
+                destination[:, local < 0] = offset
             groups.append(_Group(_sparse_csr(garment.operator, device), torch.from_numpy(rows).to(device),
                                  torch.from_numpy(destination).to(device)))
         prolong = sp.block_diag([g.prolong for g in garments], format="csr")  # (V, patches)
@@ -281,6 +371,8 @@ class _BatchStructure:
             groups=groups,
             prolong=_sparse_csr(prolong, device),
             restrict=_sparse_csr(prolong.T.tocsr(), device),
+            banded=banded,
+            band_widths=widths,
         )
 
 
@@ -312,8 +404,9 @@ class CoarseSpace:
                str(cloth.device))
         with _CACHE_LOCK:
             if key not in _STRUCTURES:
+                # the CPU factorises each garment's band (LAPACK), CUDA its dense matrix (cuSOLVER)
                 _STRUCTURES[key] = _BatchStructure.build(faces, vert_counts, face_counts, linked, levels, smoothing,
-                                                         cloth.device)
+                                                         cloth.device, banded=cloth.device.type == "cpu")
                 while len(_STRUCTURES) > _STRUCTURES_SIZE:
                     _STRUCTURES.popitem(last=False)
             _STRUCTURES.move_to_end(key)
@@ -336,14 +429,18 @@ class CoarseSpace:
                 coupling = -self._links.blocks.to(blocks.dtype)
                 blocks.index_add_(0, s.pair_of_link[:, 0], coupling).index_add_(0, s.pair_of_link[:, 1], coupling)
             flat = blocks.reshape(-1, 9)
-            dense = blocks.new_zeros(s.buffer_size)
+            buffer = blocks.new_zeros(s.buffer_size + 1)  # the last slot: the bands' upper triangles
             for group in s.groups:  # Pᵀ K P block by block: G times the pair blocks of the group's garments
                 count, pairs = group.pair_rows.shape
                 stacked = flat[group.pair_rows.reshape(-1)].reshape(count, pairs, 9).permute(1, 0, 2)
                 coarse = group.operator @ stacked.reshape(pairs, 9 * count)
-                dense[group.destination] = coarse.reshape(-1, count, 9).permute(1, 0, 2).reshape(count, -1)
-        self._factors = [_regularized_cholesky(dense[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
-                         for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
+                buffer[group.destination] = coarse.reshape(-1, count, 9).permute(1, 0, 2).reshape(count, -1)
+        if s.banded:
+            self._factors = [_regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
+                             for start, (c0, c1), w in zip(s.matrix_offsets, s.coarse_ranges, s.band_widths)]
+        else:
+            self._factors = [_regularized_cholesky(buffer[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
+                             for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
 
     def solve(self, r: Tensor) -> Tensor:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""
@@ -351,6 +448,9 @@ class CoarseSpace:
             raise RuntimeError("CoarseSpace.solve before factor: call factor(x) first")
         s = self._s
         coarse_r = (s.restrict @ r.double()).reshape(-1, 1)
+        if s.banded:
+            coarse_z = _BandSolve.apply(coarse_r, self._factors, s.coarse_ranges)
+            return (s.prolong @ coarse_z.reshape(self.num_patches, 3)).to(r.dtype)
         parts = []
         for (c0, c1), chol in zip(s.coarse_ranges, self._factors):  # (L Lᵀ)⁻¹ b: two triangular solves
             half = torch.linalg.solve_triangular(chol, coarse_r[c0:c1], upper=False)
