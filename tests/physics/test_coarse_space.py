@@ -106,7 +106,11 @@ def test_the_band_factorisation_equals_the_dense_one_and_the_patches_make_a_narr
     """The CPU factorises each garment's coarse matrix in band storage (LAPACK), CUDA the dense
     matrix: on the same batch (with links) both give the same correction, and the patches are
     numbered so that the band is narrower than the matrix (or the band would gain nothing)."""
-    from physdrape.physics.coarse_space import _BatchStructure, _galerkin_operator, _garment_prolongation
+    from physdrape.physics.coarse_space import (
+        _BatchStructure,
+        _galerkin_operator,
+        _garment_prolongation,
+    )
 
     batch, cloth, x = _batch()
     cloth = _linked(cloth, batch)
