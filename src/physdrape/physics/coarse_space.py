@@ -67,8 +67,8 @@ __all__ = ["CoarseSpace"]
 REGULARIZATION = 1e-6
 
 #: Most patches of one garment: a larger garment gets more coarsening levels, so that its coarse
-#: factor stays small (600 patches: 1,800 unknowns per refresh).
-MAX_PATCHES = 600
+#: factor stays small (1,200 patches: 3,600 unknowns per refresh, in a band).
+MAX_PATCHES = 1200
 
 def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smoothing: int) -> sp.csr_matrix:
     """P (V, patches) of one garment (local vertex ids); `levels` is raised until the garment has
