@@ -10,8 +10,8 @@ the same X_init with `physdrape.train.instances.TEACHER_SETTINGS`), every settin
 instance at every T twice: the solver alone from X_init (Δx = 0, f̂ = 0, then the handler;
 `PhysDrape.physics_only`) and the checkpoint's full model (GNN → solver → handler). A setting
 overrides fields of the checkpoint's `ModelConfig` (default settings: ``checkpoint``, its own
-config, and ``refactor_every_step``: the coarse space factored at every step instead of with the
-body planes). Per setting, row and T: the mean E_total over the set divided by the teacher
+config; ``no_refactor_warmup``: the coarse space factored with the body planes only, not at each
+of the first steps; ``refactor_every_step``: the coarse space factored at every step). Per setting, row and T: the mean E_total over the set divided by the teacher
 drapes' mean, E_strain likewise, and the median over instances of one drape's wall time (one
 torch thread; X_init is not included, it is the same for every row). Settings run interleaved
 instance by instance, so a change in the machine's load hits all of them alike. Writes <out>.md
@@ -35,7 +35,7 @@ from report import source_lines, write_report
 from physdrape.model import ModelConfig
 from physdrape.provenance import provenance
 
-DEFAULT_SETTINGS = ("checkpoint=", "refactor_every_step=refactor_every:1")
+DEFAULT_SETTINGS = ("checkpoint=", "no_refactor_warmup=refactor_first:0", "refactor_every_step=refactor_every:1")
 
 
 def parse_setting(text: str) -> tuple[str, dict]:

@@ -135,19 +135,22 @@ def test_two_level_arguments_are_checked():
         _solver(eta=1.0, contact_band=-1.0)
 
 
-def test_coarse_space_is_refactored_every_refactor_every_steps(monkeypatch):
+def test_coarse_space_is_refactored_at_the_first_steps_then_every_refactor_every_steps(monkeypatch):
     batch, x0 = _case()
     calls = []
     original = CoarseSpace.factor
     monkeypatch.setattr(CoarseSpace, "factor", lambda self, *a, **k: (calls.append(1), original(self, *a, **k))[1])
-    for every, expected in ((1, 7), (3, 3), (7, 1)):
+    # steps 0..6: every step; at 0, 3, 6; at 0; at 0, 1, 2 and then 3, 6; at 0 and 1
+    for every, first, expected in ((1, 0, 7), (3, 0, 3), (7, 0, 1), (3, 3, 5), (7, 2, 2)):
         calls.clear()
         with torch.no_grad():
-            _solver(eta=1.0, gamma=0.98, max_step=0.02, requery_every=3, refactor_every=every)(
+            _solver(eta=1.0, gamma=0.98, max_step=0.02, requery_every=3, refactor_every=every, refactor_first=first)(
                 x0, batch.cloth, f_hat=None, steps=7, bodies=batch.bodies, body_index=batch.body_index)
-        assert len(calls) == expected, (every, len(calls))
+        assert len(calls) == expected, (every, first, len(calls))
     with pytest.raises(ValueError, match="refactor_every"):
         _solver(eta=1.0, refactor_every=0)
+    with pytest.raises(ValueError, match="refactor_first"):
+        _solver(eta=1.0, refactor_first=-1)
 
 
 def test_spd_inverse_3x3_matches_the_lapack_inverse():

@@ -50,7 +50,10 @@ class ModelConfig:
     compliance); see `StretchingSolver`. requery_every: two-level steps between body queries;
     refactor_every: two-level steps between factorisations of the coarse space (1: every step,
     the coarse moves follow the garment's stiffness as its strain relaxes, at the cost of a
-    factorisation per step; `bench/solver_settings.py` measures both).
+    factorisation per step; `bench/solver_settings.py` measures both); refactor_first: the first
+    steps that factorise at every step, then every refactor_every (X_init's strain relaxes most
+    in the first steps, and a factor from X_init holds the coarse moves back after it has;
+    `results/solver_settings.md`).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
@@ -87,6 +90,7 @@ class ModelConfig:
     max_step: float = 2e-2
     requery_every: int = 3
     refactor_every: int = 3
+    refactor_first: int = 3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05

@@ -74,6 +74,8 @@ class StretchingSolver(nn.Module):
         requery_every: two-level steps between body queries (the planes are held in between).
         refactor_every: two-level steps between factorisations of the coarse space at the current
             positions (the factor is held in between); None: with the body planes.
+        refactor_first: the first steps that factorise the coarse space at every step (then every
+            `refactor_every`): the garment's stiffness changes most while X_init's strain relaxes.
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -82,7 +84,7 @@ class StretchingSolver(nn.Module):
 
     def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
                  gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int | None = None,
-                 max_halvings: int = 6,
+                 refactor_first: int = 0, max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
@@ -90,9 +92,9 @@ class StretchingSolver(nn.Module):
         if max_step < 0:
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
         refactor_every = requery_every if refactor_every is None else refactor_every
-        if requery_every < 1 or refactor_every < 1 or max_halvings < 0:
-            raise ValueError(f"need requery_every ≥ 1, refactor_every ≥ 1 and max_halvings ≥ 0, got {requery_every}, "
-                             f"{refactor_every}, {max_halvings}")
+        if requery_every < 1 or refactor_every < 1 or refactor_first < 0 or max_halvings < 0:
+            raise ValueError(f"need requery_every ≥ 1, refactor_every ≥ 1, refactor_first ≥ 0 and max_halvings ≥ 0, "
+                             f"got {requery_every}, {refactor_every}, {refactor_first}, {max_halvings}")
         if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0:
             raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0 and contact_band ≥ 0 [m], got "
                              f"{coarse_levels}, {coarse_smoothing}, {contact_band}")
@@ -100,6 +102,7 @@ class StretchingSolver(nn.Module):
         self.max_step = max_step
         self.margin, self.contact_stiffness = margin, contact_stiffness
         self.requery_every, self.refactor_every, self.max_halvings = requery_every, refactor_every, max_halvings
+        self.refactor_first = refactor_first
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
@@ -157,7 +160,7 @@ class StretchingSolver(nn.Module):
                 phi = None
             force = problem.force(x)
             contact = problem.contact_blocks(x)
-            if t % self.refactor_every == 0:
+            if t % self.refactor_every == 0 or t < self.refactor_first:
                 coarse.factor(x, contact)
             z = _precondition(self._stiffness_inverse(x.detach(), cloth, contact), coarse, force)
             if direction is not None:
