@@ -32,7 +32,8 @@ which is then factorised by Cholesky. A patch couples only to the patches near i
 patches are numbered (reverse Cuthill–McKee) so that those couplings lie in a band about the
 diagonal: on the CPU the matrix is assembled and factorised in band storage (LAPACK's pbtrf and
 pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense (cuSOLVER), where a
-few hundred unknowns cost little either way. The correction is differentiable in r (P and the factor are constants).
+few hundred unknowns cost little either way. The correction is differentiable in r (P and the
+factor are constants).
 
 Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
 the Galerkin product, the factorisation (each garment's coarse system is small, at most
