@@ -254,3 +254,30 @@ def test_batches_of_one_topology_share_their_structure_and_no_other():
     expected = first.solve(r)
     again.factor(x.float() * 1.1)
     torch.testing.assert_close(first.solve(r), expected, rtol=0, atol=0)
+
+
+def test_the_band_factorisation_and_solve_run_on_one_blas_thread(monkeypatch):
+    """The solver brings its own threads; SciPy's LAPACK must not start threads of its own beside
+    them (they would take the cores the solver's threads run on)."""
+    from scipy.linalg import lapack
+
+    from physdrape.physics.coarse_space import _blas
+
+    seen = []
+
+    def spying(name):
+        original = getattr(lapack, name)
+
+        def call(*args, **kwargs):
+            seen.append({info["num_threads"] for info in _blas().info() if info["user_api"] == "blas"})
+            return original(*args, **kwargs)
+        return call
+
+    monkeypatch.setattr(lapack, "dpbtrf", spying("dpbtrf"))
+    monkeypatch.setattr(lapack, "dpbtrs", spying("dpbtrs"))
+    _, cloth, x = _batch()
+    coarse = CoarseSpace(cloth)
+    with _blas().limit(limits=2, user_api="blas"):  # a process whose BLAS would use two threads
+        coarse.factor(x, _contact_blocks(cloth.num_verts))
+        coarse.solve(torch.ones(cloth.num_verts, 3, dtype=torch.float64))
+    assert len(seen) == 4 and all(threads == {1} for threads in seen), seen  # two garments: 2 factors, 2 solves

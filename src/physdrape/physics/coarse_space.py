@@ -44,6 +44,7 @@ factors held there (the band factors as NumPy arrays).
 from __future__ import annotations
 
 import collections
+import functools
 import hashlib
 import threading
 import warnings
@@ -54,6 +55,7 @@ import scipy.sparse as sp
 import torch
 from scipy.linalg import lapack
 from scipy.sparse.csgraph import reverse_cuthill_mckee
+from threadpoolctl import ThreadpoolController
 from torch import Tensor
 
 from physdrape.geometry import topology
@@ -130,12 +132,27 @@ def _regularized_band_cholesky(band: Tensor) -> np.ndarray:
     return _regularized(band, band[:, 0], factorise)
 
 
+@functools.cache
+def _blas() -> ThreadpoolController:
+    """The BLAS libraries loaded in the process (SciPy's LAPACK among them), found once."""
+    return ThreadpoolController()
+
+
+def _one_blas_thread():
+    """A context in which the band factorisations and solves run on the calling thread alone: the
+    solver brings its own threads (torch's, or a batch's garment groups side by side), and BLAS
+    threads of its own beside them, waiting between these small calls, would take those threads'
+    cores (a drape on two torch threads took twice as long)."""
+    return _blas().limit(limits=1, user_api="blas")
+
+
 def _band_solve(rhs: Tensor, factors: list[np.ndarray], ranges: list[tuple[int, int]]) -> Tensor:
     """A⁻¹ rhs (C, 1) float64 on the CPU for the block-diagonal A of the garments' band factors."""
     out = torch.empty_like(rhs)
     values = rhs.detach().numpy()
-    for (c0, c1), chol in zip(ranges, factors):
-        out[c0:c1] = torch.from_numpy(lapack.dpbtrs(chol, values[c0:c1], lower=1)[0])
+    with _one_blas_thread():
+        for (c0, c1), chol in zip(ranges, factors):
+            out[c0:c1] = torch.from_numpy(lapack.dpbtrs(chol, values[c0:c1], lower=1)[0])
     return out
 
 
@@ -437,8 +454,10 @@ class CoarseSpace:
                 coarse = group.operator @ stacked.reshape(pairs, 9 * count)
                 buffer[group.destination] = coarse.reshape(-1, count, 9).permute(1, 0, 2).reshape(count, -1)
         if s.banded:
-            self._factors = [_regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
-                             for start, (c0, c1), w in zip(s.matrix_offsets, s.coarse_ranges, s.band_widths)]
+            with _one_blas_thread():
+                self._factors = [
+                    _regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
+                    for start, (c0, c1), w in zip(s.matrix_offsets, s.coarse_ranges, s.band_widths)]
         else:
             self._factors = [_regularized_cholesky(buffer[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
                              for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
