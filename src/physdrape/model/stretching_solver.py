@@ -14,15 +14,13 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
-    contact_energy,
-    garment_energy,
     plane_contact_blocks,
     plane_contact_forces,
-    plane_distance,
     query_samples,
 )
-from physdrape.physics.forces import extra_blocks, internal_energy, internal_forces
+from physdrape.physics.forces import extra_blocks, internal_forces
 from physdrape.physics.majorant import vertex_blocks
+from physdrape.physics.potential import GarmentPotential
 
 
 class SolverKind(str, enum.Enum):
@@ -229,7 +227,7 @@ class StretchingSolver(nn.Module):
         phi1 = potential(x0 + move)
         curvature = phi1 - phi0 + gain  # Φ(1) − Φ(0) − Φ'(0)
         vertex = torch.where(curvature > 0, gain / (2.0 * curvature).clamp_min(torch.finfo(x0.dtype).tiny),
-                             torch.full_like(gain, 4.0)).clamp(0.05, 4.0)
+                             torch.full_like(gain, 4.0)).clamp(0.05, 4.0).to(x0.dtype)
         phi_vertex = potential(x0 + move * vertex[owner, None])
         use_vertex = (phi_vertex < phi1) & (phi_vertex < phi0)
         alpha = torch.where(use_vertex, vertex, torch.ones_like(vertex))
@@ -288,29 +286,18 @@ class _Relaxation:
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
+        self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None) -> None:
         with torch.no_grad():
             q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
         # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
         self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
-
-    def distance(self, x: Tensor) -> Tensor | None:
-        """d per sample (vertices, then centroids) above its held plane [m], or None without planes."""
-        if self.planes is None:
-            return None
-        return plane_distance(x, self.cloth.faces, *self.planes)
+        self._potential.hold(self.planes)
 
     def potential(self, x: Tensor) -> Tensor:
-        """Φ per garment (G,) [J]."""
-        phi = internal_energy(x, self.cloth)
-        distance = self.distance(x)
-        if distance is not None:
-            phi = phi + garment_energy(contact_energy(distance, stiffness=self.stiffness, margin=self.margin),
-                                       self.cloth)
-        if self.f_hat is not None:
-            phi = phi - self.cloth.sum_per_garment((self.f_hat * x).sum(-1), self.cloth.vert_garment)
-        return phi
+        """Φ per garment (G,) [J], float64 (`physics.potential`: one launch), on the held planes."""
+        return self._potential(x)
 
     def force(self, x: Tensor) -> Tensor:
         """−∇Φ (V, 3) [N]."""

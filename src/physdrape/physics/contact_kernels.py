@@ -5,8 +5,9 @@ A solver step evaluates the contact at every sample (vertices, then face centroi
 its distance to its plane for the energy, its force and its Gauss–Newton block. As chains of torch
 ops (gathers for the centroids, outer products, index_add with repeated rows) each costs several
 times the arithmetic; here each is one launch with one thread per sample, summing into the
-vertices atomically, on the CPU or on CUDA. The energy itself stays `contact.contact_energy` of
-the distances, the one formula every user of the penalty shares.
+vertices atomically, on the CPU or on CUDA. The energy k_c ReLU(ε − d)³ of the distances is
+`contact.contact_energy` in torch (what the training loss differentiates) and `penalty` here (the
+solver's line-search potential, `physics.potential`, checked against the torch one in its tests).
 
 A sample is given by its row of the corner table (`contact.sample_corners`): a vertex sample
 repeats its vertex three times, a centroid sample names its face's corners. Its point is the
@@ -34,6 +35,12 @@ def kernels() -> dict:
         centroid = (x[b, a] + x[b, corners[s, 1]] + x[b, corners[s, 2]]) / f64(3.0)
         point = wp.where(a == corners[s, 1], x[b, a], centroid)
         return wp.dot(point - closest[s], normal[s])
+
+    @wp.func
+    def penalty(d: wp.float64, stiffness: wp.float64, margin: wp.float64):
+        """k_c ReLU(ε − d)³ (`contact.contact_energy`)."""
+        depth = wp.max(margin - d, f64(0.0))
+        return stiffness * depth * depth * depth
 
     @wp.kernel
     def distance_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
@@ -85,4 +92,5 @@ def kernels() -> dict:
                 wp.atomic_add(out, b, c, share)
                 wp.atomic_add(out, b, corners[s, 2], share)
 
-    return {"distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel}
+    return {"distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel,
+            "plane_distance": plane_distance, "penalty": penalty}

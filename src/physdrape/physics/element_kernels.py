@@ -71,17 +71,24 @@ def _kernels() -> dict:
                      rest_inv: wp.array(dtype=wp.mat22d), b: int, f: int):
         return deformation_columns(x[b, faces[f, 0]], x[b, faces[f, 1]], x[b, faces[f, 2]], rest_inv[f])
 
+    @wp.func
+    def face_strain_energy(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                           rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
+                           mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), b: int, f: int):
+        """StVK energy V (μ‖G‖²_F + λ/2 tr(G)²) of face f of batch row b."""
+        c0, c1 = face_columns(x, faces, rest_inv, b, f)
+        g00, g01, g11 = green_strain(c0, c1)
+        trace = g00 + g11
+        psi = mu[f] * (g00 * g00 + f64(2.0) * g01 * g01 + g11 * g11) + f64(0.5) * lam[f] * trace * trace
+        return volume[f] * psi
+
     @wp.kernel
     def strain_energy_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
                              rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
                              mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
                              out: wp.array2d(dtype=wp.float64)):
         b, f = wp.tid()
-        c0, c1 = face_columns(x, faces, rest_inv, b, f)
-        g00, g01, g11 = green_strain(c0, c1)
-        trace = g00 + g11
-        psi = mu[f] * (g00 * g00 + f64(2.0) * g01 * g01 + g11 * g11) + f64(0.5) * lam[f] * trace * trace
-        out[b, f] = volume[f] * psi
+        out[b, f] = face_strain_energy(x, faces, rest_inv, volume, mu, lam, b, f)
 
     @wp.kernel
     def strain_force_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
@@ -171,16 +178,22 @@ def _kernels() -> dict:
         out[b, h] = hinge_angle(edge, wp.cross(edge, x[b, hinges[h, 2]] - x0),
                                 wp.cross(x[b, hinges[h, 3]] - x0, edge))
 
-    @wp.kernel
-    def bend_energy_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
-                           stiffness: wp.array(dtype=wp.float64), out: wp.array2d(dtype=wp.float64)):
-        b, h = wp.tid()
+    @wp.func
+    def hinge_bend_energy(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                          stiffness: wp.array(dtype=wp.float64), b: int, h: int):
+        """Dihedral bending energy k θ²/2 of hinge h of batch row b."""
         x0 = x[b, hinges[h, 0]]
         edge = x[b, hinges[h, 1]] - x0
         n_a = wp.cross(edge, x[b, hinges[h, 2]] - x0)  # |n_a| = 2 · area of face (v0, v1, v2)
         n_b = wp.cross(x[b, hinges[h, 3]] - x0, edge)  # |n_b| = 2 · area of face (v0, v3, v1)
         theta = hinge_angle(edge, n_a, n_b)
-        out[b, h] = f64(0.5) * stiffness[h] * theta * theta
+        return f64(0.5) * stiffness[h] * theta * theta
+
+    @wp.kernel
+    def bend_energy_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                           stiffness: wp.array(dtype=wp.float64), out: wp.array2d(dtype=wp.float64)):
+        b, h = wp.tid()
+        out[b, h] = hinge_bend_energy(x, hinges, stiffness, b, h)
 
     @wp.kernel
     def bend_force_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
@@ -201,7 +214,8 @@ def _kernels() -> dict:
         wp.atomic_add(out, b, hinges[h, 3], scale * g3)
 
     return {"wp": wp, "atan2": atan2_f64, "deformation_columns": deformation_columns, "green_strain": green_strain, "stress": stress,
-            "angle_gradients": angle_gradients, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
+            "angle_gradients": angle_gradients, "face_strain_energy": face_strain_energy,
+            "hinge_bend_energy": hinge_bend_energy, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
             "hinge_angle": hinge_angle_kernel, "bend_energy": bend_energy_kernel, "bend_force": bend_force_kernel}
 
 

@@ -36,11 +36,18 @@ def internal_forces(x: Tensor, cloth: Cloth) -> Tensor:
 def energy_terms(x: Tensor, cloth: Cloth) -> dict[str, Tensor]:
     """Per-garment totals [J] of each internal energy term, x (..., V, 3) → {name: (..., G)}:
     strain, bend, gravity, and grip, stitch and layer when the cloth has them."""
-    terms = {
+    return {
         "strain": cloth.sum_per_garment(strain_energy(x, cloth), cloth.face_garment),
         "bend": cloth.sum_per_garment(bend_energy(x, cloth), cloth.hinge_garment),
         "gravity": cloth.sum_per_garment(gravity_energy(x, cloth), cloth.vert_garment),
+        **tie_energy_terms(x, cloth),
     }
+
+
+def tie_energy_terms(x: Tensor, cloth: Cloth) -> dict[str, Tensor]:
+    """The per-garment totals [J] of the terms that tie the cloth beyond its elements, x (..., V, 3)
+    → {name: (..., G)}: grip, stitch and layer, those the cloth has (none: {})."""
+    terms = {}
     if cloth.grip is not None:
         terms["grip"] = cloth.sum_per_garment(grip_energy(x, cloth.grip), cloth.vert_garment[cloth.grip.index])
     if cloth.stitches is not None:

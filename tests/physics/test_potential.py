@@ -1,0 +1,146 @@
+"""Φ per garment in one launch (`physics.potential`) against its terms composed from the per-element
+kernels and torch (float64), on packed batches, with and without planes, external forces, ties."""
+
+from dataclasses import replace
+
+import pytest
+import torch
+from device_params import DEVICES
+
+from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.primitives import grid_sheet, open_cylinder
+from physdrape.physics import Cloth, Material
+from physdrape.physics.contact import (
+    contact_energy,
+    contact_samples,
+    garment_energy,
+    plane_distance,
+)
+from physdrape.physics.forces import internal_energy
+from physdrape.physics.layers import LayerOrder
+from physdrape.physics.potential import GarmentPotential, _garment_parts
+from physdrape.physics.stitches import Stitches
+
+STIFFNESS, MARGIN = 2.5e3, 2e-3
+
+
+def _case(sheet_cells=(12, 10), seed=0):
+    sheet = Garment.from_mesh(*grid_sheet(*sheet_cells, width=0.4, height=0.3), name="sheet", dtype=torch.float64)
+    tube = Garment.from_mesh(*open_cylinder(6, 14, radius=0.12, length=0.3), name="tube", dtype=torch.float64)
+    batch = GarmentBatch.pack([sheet, tube, sheet])
+    cloth = Cloth.build(batch, [Material(), Material(density=0.3), Material(k_bend=3e-5)])
+    gen = torch.Generator().manual_seed(seed)
+    x = batch.rest * 1.05 + 3e-3 * torch.randn(batch.rest.shape, generator=gen, dtype=torch.float64)
+    samples = contact_samples(x, cloth.faces)
+    normal = torch.nn.functional.normalize(torch.randn(samples.shape, generator=gen, dtype=torch.float64), dim=-1)
+    depth = (4 * MARGIN) * torch.rand(samples.shape[0], generator=gen, dtype=torch.float64) - MARGIN  # some in contact
+    closest = samples - depth[:, None] * normal
+    external = 0.01 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
+    return batch, cloth, x, (closest, normal), external
+
+
+def _potential(x, cloth, *, planes, external):
+    potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN)
+    potential.hold(planes)
+    return potential(x)
+
+
+def _composed(x, cloth, planes, external):
+    phi = internal_energy(x, cloth)
+    if planes is not None:
+        d = plane_distance(x, cloth.faces, *planes)
+        phi = phi + garment_energy(contact_energy(d, stiffness=STIFFNESS, margin=MARGIN), cloth)
+    if external is not None:
+        phi = phi - cloth.sum_per_garment((external * x).sum(-1), cloth.vert_garment)
+    return phi
+
+
+def _tied(cloth, batch):
+    gen = torch.Generator().manual_seed(3)
+    first = batch.garments[0].num_verts
+    stitched = torch.randperm(first, generator=gen)[:16].reshape(8, 2)
+    layered = first + torch.randperm(batch.garments[1].num_verts, generator=gen)[:20].reshape(10, 2)
+    normal = torch.nn.functional.normalize(torch.randn(10, 3, generator=gen, dtype=torch.float64), dim=-1)
+    return replace(cloth, stitches=Stitches(stitched, torch.full((8,), 0.01, dtype=torch.float64),
+                                            torch.full((8,), 200.0, dtype=torch.float64)),
+                   layers=LayerOrder.build(layered, normal))
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("with_planes", [True, False], ids=["planes", "no_planes"])
+@pytest.mark.parametrize("with_external", [True, False], ids=["external", "no_external"])
+def test_matches_the_composed_terms(device, with_planes, with_external):
+    _batch, cloth, x, planes, external = _case()
+    planes = planes if with_planes else None
+    external = external if with_external else None
+    expected = _composed(x, cloth, planes, external)
+    on = cloth.to(device=device)
+    got = _potential(x.to(device), on, planes=None if planes is None else tuple(p.to(device) for p in planes),
+                     external=None if external is None else external.to(device))
+    assert got.dtype == torch.float64 and got.shape == (3,)
+    torch.testing.assert_close(got.cpu(), expected, rtol=1e-12, atol=1e-15)
+    if with_planes:  # the contact term is not negligible in the comparison
+        d = plane_distance(x, cloth.faces, *planes)
+        assert bool((d < MARGIN).any())
+
+
+def test_ties_and_float32_positions():
+    batch, cloth, x, planes, external = _case()
+    tied = _tied(cloth, batch)
+    expected = _composed(x, tied, planes, external)
+    got = _potential(x, tied, planes=planes, external=external)
+    torch.testing.assert_close(got, expected, rtol=1e-12, atol=1e-15)
+    assert not torch.allclose(expected, _composed(x, cloth, planes, external))  # the ties count
+    # float32 positions: float64 arithmetic on the float32 values
+    x32 = x.float()
+    got32 = _potential(x32, cloth, planes=planes, external=external)
+    torch.testing.assert_close(got32, _composed(x32.double(), cloth, planes, external), rtol=1e-12, atol=1e-15)
+
+
+def test_threads_split_by_garment_same_totals():
+    """Two torch threads: the launch splits between whole garments and gives the one-thread totals."""
+    _, cloth, x, planes, external = _case(sheet_cells=(40, 40))
+    potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN)
+    potential.hold(planes)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = potential(x)
+        torch.set_num_threads(2)
+        parts = _garment_parts(cloth, 2)
+        two = potential(x)
+    finally:
+        torch.set_num_threads(before)
+    assert len(parts) == 2
+    # the parts cover every face, hinge and vertex once, garment by garment
+    for k, total in ((0, cloth.faces.shape[0]), (2, cloth.hinges.shape[0]), (4, cloth.num_verts)):
+        assert parts[0][k] == 0 and parts[0][k + 1] == parts[1][k] and parts[1][k + 1] == total
+    assert torch.equal(one, two)
+    torch.testing.assert_close(one, _composed(x, cloth, planes, external), rtol=1e-12, atol=1e-15)
+
+
+def test_new_positions_and_new_planes():
+    """The recorded launch reads each call's positions and, after `hold`, the new planes."""
+    _, cloth, x, planes, external = _case()
+    potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN)
+    potential.hold(planes)
+    first = potential(x)
+    moved = x + 1e-3
+    torch.testing.assert_close(potential(moved), _composed(moved, cloth, planes, external), rtol=1e-12, atol=1e-15)
+    shifted = (planes[0] + 2e-3 * planes[1], planes[1])  # every plane 2 mm further out: more contact
+    potential.hold(shifted)
+    torch.testing.assert_close(potential(x), _composed(x, cloth, shifted, external), rtol=1e-12, atol=1e-15)
+    assert bool((potential(x) > first).all())
+    potential.hold(None)
+    torch.testing.assert_close(potential(x), _composed(x, cloth, None, external), rtol=1e-12, atol=1e-15)
+
+
+def test_bad_shapes_are_refused():
+    _, cloth, x, planes, external = _case()
+    potential = GarmentPotential(cloth, stiffness=STIFFNESS, margin=MARGIN)
+    with pytest.raises(ValueError, match="packed positions"):
+        potential(x[:-1])
+    with pytest.raises(ValueError, match="the planes must have shape"):
+        potential.hold((planes[0][:-1], planes[1][:-1]))
+    with pytest.raises(ValueError, match="a force per vertex"):
+        GarmentPotential(cloth, external=external[:-1])
