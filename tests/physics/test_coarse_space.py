@@ -281,3 +281,22 @@ def test_the_band_factorisation_and_solve_run_on_one_blas_thread(monkeypatch):
         coarse.factor(x, _contact_blocks(cloth.num_verts))
         coarse.solve(torch.ones(cloth.num_verts, 3, dtype=torch.float64))
     assert len(seen) == 4 and all(threads == {1} for threads in seen), seen  # two garments: 2 factors, 2 solves
+
+
+def test_one_blas_thread_while_any_thread_is_inside_and_the_setting_restored_after():
+    """Two threads entering and leaving in interleaved order (the garment groups of a batch on two
+    threads): one BLAS thread until the last leaves, then the process's own setting again."""
+    from physdrape.physics.coarse_space import _blas, _one_blas_thread
+
+    def blas_threads():
+        return {info["num_threads"] for info in _blas().info() if info["user_api"] == "blas"}
+
+    with _blas().limit(limits=2, user_api="blas"):
+        first, second = _one_blas_thread(), _one_blas_thread()
+        first.__enter__()
+        assert blas_threads() == {1}
+        second.__enter__()
+        first.__exit__(None, None, None)  # the first to enter leaves first
+        assert blas_threads() == {1}
+        second.__exit__(None, None, None)
+        assert blas_threads() == {2}

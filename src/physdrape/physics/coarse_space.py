@@ -44,6 +44,7 @@ factors held there (the band factors as NumPy arrays).
 from __future__ import annotations
 
 import collections
+import contextlib
 import functools
 import hashlib
 import threading
@@ -138,12 +139,34 @@ def _blas() -> ThreadpoolController:
     return ThreadpoolController()
 
 
+@contextlib.contextmanager
 def _one_blas_thread():
     """A context in which the band factorisations and solves run on the calling thread alone: the
     solver brings its own threads (torch's, or a batch's garment groups side by side), and BLAS
     threads of its own beside them, waiting between these small calls, would take those threads'
-    cores (a drape on two torch threads took twice as long)."""
-    return _blas().limit(limits=1, user_api="blas")
+    cores (a drape on two torch threads took twice as long).
+
+    The BLAS thread count is process-wide: the first thread to enter sets it to 1 and the last to
+    leave restores what it was, so that threads draping side by side, entering and leaving in any
+    order, all run on one BLAS thread and leave the process's setting as they found it."""
+    global _blas_limit, _blas_users
+    with _BLAS_LOCK:
+        if not _blas_users:
+            _blas_limit = _blas().limit(limits=1, user_api="blas")
+        _blas_users += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _blas_users -= 1
+            if not _blas_users:
+                _blas_limit.restore_original_limits()
+                _blas_limit = None
+
+
+_BLAS_LOCK = threading.Lock()
+_blas_limit = None  # the limit in force while `_blas_users` > 0 threads are inside `_one_blas_thread`
+_blas_users = 0
 
 
 def _band_solve(rhs: Tensor, factors: list[np.ndarray], ranges: list[tuple[int, int]]) -> Tensor:
