@@ -151,17 +151,3 @@ def test_coarse_space_is_refactored_at_the_first_steps_then_every_refactor_every
         _solver(eta=1.0, refactor_every=0)
     with pytest.raises(ValueError, match="refactor_first"):
         _solver(eta=1.0, refactor_first=-1)
-
-
-def test_spd_inverse_3x3_matches_the_lapack_inverse():
-    from physdrape.model.stretching_solver import spd_inverse_3x3
-
-    gen = torch.Generator().manual_seed(3)
-    a = torch.randn(500, 3, 3, generator=gen, dtype=torch.float64)
-    scale = torch.logspace(-6, 0, 500, dtype=torch.float64)[:, None]  # condition numbers up to about 10⁶
-    rotation = torch.linalg.qr(a)[0]
-    eigenvalues = torch.cat([torch.ones(500, 2, dtype=torch.float64), scale], dim=1)
-    blocks = rotation @ torch.diag_embed(eigenvalues) @ rotation.mT
-    inverse = spd_inverse_3x3(blocks)
-    torch.testing.assert_close(inverse, torch.linalg.inv(blocks), rtol=1e-8, atol=1e-8 * inverse.abs().amax().item())
-    assert spd_inverse_3x3(blocks.float()).dtype == torch.float32

@@ -16,7 +16,7 @@ from physdrape.physics.hessians import (
     bend_gauss_newton_hessian,
     strain_hessian,
 )
-from physdrape.physics.majorant import pair_blocks, vertex_blocks
+from physdrape.physics.majorant import pair_blocks, vertex_blocks, vertex_compliance
 from physdrape.physics.strain import deformation_gradient, green_strain, stress
 
 
@@ -143,3 +143,27 @@ def test_pair_blocks_refuse_a_bad_pair_table():
     garment, cloth = _cloth()
     with pytest.raises(ValueError, match="pair_of_corner must be int32"):
         pair_blocks(garment.rest, cloth, torch.zeros(cloth.faces.shape[0], 9, dtype=torch.int64), 1)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_vertex_compliance_inverts_the_floored_blocks(dtype):
+    """(K_i + rel·max(tr K_i, tiny)·I)⁻¹ with K_i the vertex blocks plus extra blocks, against
+    LAPACK's inverse in float64, without and with contact-like rank-1 extra blocks."""
+    garment, cloth = _cloth()
+    gen = torch.Generator().manual_seed(4)
+    x = _stretched(garment)
+    normal = torch.nn.functional.normalize(torch.randn(cloth.num_verts, 3, generator=gen, dtype=torch.float64), dim=-1)
+    extra = 50.0 * torch.rand(cloth.num_verts, generator=gen, dtype=torch.float64)[:, None, None] * (
+        normal[:, :, None] * normal[:, None, :])
+    rel = 1e-6
+    for blocks_extra in (None, extra):
+        k = vertex_blocks(x, cloth) + (0.0 if blocks_extra is None else blocks_extra)
+        floored = k + rel * k.diagonal(dim1=-2, dim2=-1).sum(-1)[:, None, None] * torch.eye(3, dtype=torch.float64)
+        expected = torch.linalg.inv(floored)
+        got = vertex_compliance(x.to(dtype), cloth.to(dtype),
+                                None if blocks_extra is None else blocks_extra.to(dtype), rel=rel)
+        assert got.dtype == dtype
+        tol = 1e-8 if dtype == torch.float64 else 1e-3  # float32: x and the extra blocks are rounded first
+        torch.testing.assert_close(got.double(), expected, rtol=tol, atol=tol * expected.abs().amax().item())
+    with pytest.raises(ValueError, match="extra blocks must have shape"):
+        vertex_compliance(x, cloth, extra[:-1], rel=rel)

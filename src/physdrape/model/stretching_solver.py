@@ -19,7 +19,7 @@ from physdrape.physics.contact import (
     query_samples,
 )
 from physdrape.physics.forces import extra_blocks, internal_forces
-from physdrape.physics.majorant import vertex_blocks
+from physdrape.physics.majorant import vertex_compliance
 from physdrape.physics.potential import GarmentPotential
 
 
@@ -207,15 +207,9 @@ class StretchingSolver(nn.Module):
 
     @torch.no_grad()
     def _stiffness_inverse(self, x: Tensor, cloth: Cloth, contact: Tensor | None) -> Tensor:
-        """Inverses of the per-vertex stiffness blocks K_i (strain, bending, contact), (V, 3, 3)."""
-        blocks = vertex_blocks(x, cloth)
-        if contact is not None:
-            blocks = blocks + contact
-        # a floor relative to each vertex's own stiffness keeps K_i invertible (a vertex of an
-        # unstretched flat patch has a rank-deficient block)
-        rel = max(1e-6, 100.0 * torch.finfo(x.dtype).eps)
-        floor = rel * blocks.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(torch.finfo(x.dtype).tiny)
-        return spd_inverse_3x3(blocks + floor[:, None, None] * torch.eye(3, dtype=x.dtype, device=x.device))
+        """Inverses of the per-vertex stiffness blocks K_i (strain, bending, contact), (V, 3, 3),
+        each floored relative to its own stiffness (`physics.majorant.vertex_compliance`)."""
+        return vertex_compliance(x, cloth, contact, rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps))
 
     @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,
@@ -250,20 +244,6 @@ def clip_moves(move: Tensor, max_length: float) -> Tensor:
         return move
     length = move.norm(dim=-1, keepdim=True)
     return move * (max_length / length.clamp_min(max_length))
-
-
-def spd_inverse_3x3(blocks: Tensor) -> Tensor:
-    """Inverses of symmetric positive definite 3×3 blocks (..., 3, 3), by their adjugate in
-    float64 (one batched pass of products, where a batched LAPACK factorisation and solve cost
-    a few times more per block), returned in the blocks' dtype."""
-    k = blocks.double()
-    a, b, c = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
-    d, e, f = k[..., 1, 1], k[..., 1, 2], k[..., 2, 2]
-    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
-    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
-    det = a * c00 + b * c01 + c * c02
-    adjugate = torch.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], dim=-1).reshape(k.shape)
-    return (adjugate / det[..., None, None]).to(blocks.dtype)
 
 
 def _precondition(stiffness_inverse: Tensor, coarse: CoarseSpace, force: Tensor) -> Tensor:

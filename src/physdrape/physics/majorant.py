@@ -35,7 +35,7 @@ from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["pair_blocks", "vertex_blocks"]
+__all__ = ["pair_blocks", "vertex_blocks", "vertex_compliance"]
 
 
 @defined_once
@@ -130,7 +130,18 @@ def _kernels():
         wp.atomic_add(out, hinges[h, 2], k * wp.outer(g2, g2))
         wp.atomic_add(out, hinges[h, 3], k * wp.outer(g3, g3))
 
-    return wp, strain_vertex_kernel, strain_pair_kernel, bend_vertex_kernel
+    @wp.kernel(enable_backward=False)
+    def compliance_kernel(blocks: wp.array(dtype=wp.mat33d), extra: wp.array(dtype=wp.mat33d), with_extra: int,
+                          rel: wp.float64, tiny: wp.float64, out: wp.array(dtype=wp.mat33d)):
+        """(K + rel·max(tr K, tiny)·I)⁻¹ of each vertex's K = blocks (+ extra)."""
+        v = wp.tid()
+        k = blocks[v]
+        if with_extra != 0:
+            k = k + extra[v]
+        floor = rel * wp.max(wp.trace(k), tiny)
+        out[v] = wp.inverse(k + floor * wp.identity(n=3, dtype=wp.float64))
+
+    return wp, strain_vertex_kernel, strain_pair_kernel, bend_vertex_kernel, compliance_kernel
 
 
 def _launch(kernel, x: Tensor, elements: Tensor, per_element: list[tuple[Tensor, str]], out: Tensor) -> None:
@@ -168,7 +179,12 @@ def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
     diagonal blocks of `physics.hessians.strain_hessian` wherever every face's stress S is PSD;
     the bending part is Gauss–Newton.
     """
-    _, strain_vertex, _, bend_vertex = _kernels()
+    return _vertex_blocks64(x, cloth).to(x.dtype)
+
+
+def _vertex_blocks64(x: Tensor, cloth: Cloth) -> Tensor:
+    """`vertex_blocks` in float64."""
+    _, strain_vertex, _, bend_vertex, _ = _kernels()
     out = torch.zeros(cloth.num_verts, 3, 3, dtype=torch.float64, device=x.device)
     x64 = x.detach().to(torch.float64).contiguous()
     if cloth.faces.shape[0]:
@@ -178,6 +194,29 @@ def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
         hinges = element_kernels.kernel_constant(cloth.hinges)
         _launch(bend_vertex, x64, hinges, [(hinges, "int32"),
                                            (element_kernels.kernel_constant(cloth.bend_stiffness), "float64")], out)
+    return out
+
+
+@torch.no_grad()
+def vertex_compliance(x: Tensor, cloth: Cloth, extra: Tensor | None = None, *, rel: float) -> Tensor:
+    """Inverses of the regularised per-vertex stiffness blocks, (K_i + rel · max(tr K_i, tiny) · I)⁻¹
+    with K_i = `vertex_blocks` (+ extra (V, 3, 3) [N/m], e.g. the contact's), (V, 3, 3) [m/N] in x's
+    dtype, computed in float64. The floor relative to each vertex's own stiffness keeps K_i
+    invertible (a vertex of an unstretched flat patch has a rank-deficient block); tiny is the
+    smallest normal number of x's dtype (a vertex without stiffness)."""
+    wp, _, _, _, compliance = _kernels()
+    blocks = _vertex_blocks64(x, cloth)
+    if extra is not None:
+        if tuple(extra.shape) != tuple(blocks.shape):
+            raise ValueError(f"extra blocks must have shape {tuple(blocks.shape)}, got {tuple(extra.shape)}")
+        extra = extra.detach().to(torch.float64).contiguous()
+    out = torch.empty_like(blocks)
+    if cloth.num_verts:
+        with torch_stream(x.device):
+            wp.launch(compliance, dim=cloth.num_verts, device=wp.device_from_torch(x.device),
+                      inputs=[launch_arg(blocks, wp.mat33d), launch_arg(blocks if extra is None else extra, wp.mat33d),
+                              int(extra is not None), float(rel), float(torch.finfo(x.dtype).tiny)],
+                      outputs=[launch_arg(out, wp.mat33d)])
     return out.to(x.dtype)
 
 
@@ -189,7 +228,7 @@ def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int)
     f's block (a, b) is added to (rows of vertex a, columns of vertex b), entry 3a + b. With
     ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3).
     """
-    _, _, strain_pair, _ = _kernels()
+    _, _, strain_pair, _, _ = _kernels()
     out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=x.device)
     if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
         raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
