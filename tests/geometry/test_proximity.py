@@ -511,3 +511,54 @@ def test_selected_body_equals_a_surface_of_that_body_alone():
         for field in ("closest", "normal", "signed_distance", "face", "inside"):
             assert torch.equal(getattr(one, field), getattr(alone, field)), field
     assert surface._doubtful is not None  # found once, for the batch, through the selections
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_a_query_from_near_faces_finds_the_closest_faces_of_points_moved_a_little(name):
+    """The local walk from an earlier query's faces (points moved by up to 1 cm, several body
+    triangles) gives the brute-force closest points and the full query's normals and distances."""
+    verts, faces = MESHES[name]()
+    x = sample_points(verts, faces, 600, 0, seed=5)
+    surface = BodySurface(verts, faces)
+    before = surface.query(x)
+    g = torch.Generator().manual_seed(6)
+    moved = x + 0.01 * (2 * torch.rand(x.shape, generator=g, dtype=torch.float64) - 1)
+    walked = surface.query(moved, near_faces=before.face)
+    full = surface.query(moved)
+    dist, closest, _, gap = brute_force_closest(moved, verts, faces)
+    assert (walked.face != before.face).float().mean() > 0.3  # not vacuous: most points changed face
+    assert torch.allclose(walked.signed_distance.abs(), dist, atol=1e-6, rtol=0)
+    clear = gap > 1e-4
+    assert torch.allclose(walked.closest[clear], closest[clear], atol=1e-6)
+    torch.testing.assert_close(walked.signed_distance, full.signed_distance, atol=1e-6, rtol=0)
+    torch.testing.assert_close(walked.normal[clear], full.normal[clear], atol=1e-5, rtol=0)
+    assert torch.equal(walked.inside, full.inside)
+
+
+def test_a_walk_that_does_not_settle_or_settles_on_a_doubtful_face_is_searched_again(monkeypatch):
+    """Points whose walk runs out of moves (started on the far side of the body), and points near
+    an overlap of two parts (doubtful faces), get the BVH's closest faces."""
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.10)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
+    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    x = sample_points(verts, faces, 800, 0, seed=7, offset=0.02)
+    surface = BodySurface(verts, faces)
+    full = surface.query(x)
+    far_start = torch.zeros_like(full.face)  # one face for every point: most walks do not settle in 4 moves
+    doubtful = surface.doubtful_faces()[0]  # found before the count below
+    searched = []
+    original = surface._search
+    monkeypatch.setattr(surface, "_search", lambda points, body, **kw: (searched.append(len(points)),
+                                                                        original(points, body, **kw))[1])
+    walked = surface.query(x, near_faces=far_start)
+    assert searched and searched[0] > 0.5 * len(x)
+    dist = brute_force_closest(x, verts, faces)[0]
+    assert torch.allclose(walked.signed_distance.abs(), dist, atol=1e-6, rtol=0)
+    torch.testing.assert_close(walked.signed_distance, full.signed_distance, atol=1e-6, rtol=0)
+    # from their own faces, the points on doubtful faces are searched again
+    searched.clear()
+    surface.query(x, near_faces=full.face)
+    assert searched[0] == int(doubtful[full.face].sum()) > 0  # the first search: the walks' again
+    with pytest.raises(ValueError, match="near_faces must name one face per point"):
+        surface.query(x, near_faces=full.face[:-1])

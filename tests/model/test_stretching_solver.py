@@ -151,3 +151,34 @@ def test_coarse_space_is_refactored_at_the_first_steps_then_every_refactor_every
         _solver(eta=1.0, refactor_every=0)
     with pytest.raises(ValueError, match="refactor_first"):
         _solver(eta=1.0, refactor_first=-1)
+
+
+def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch):
+    """With follow_planes the planes of every step are those of a body query at that step's
+    positions (found by the local walk from the last step's faces), and each step still lowers Φ
+    on the planes it holds."""
+    import physdrape.model.stretching_solver as module
+
+    batch, x0 = _case(radii=(0.16, 0.185))
+    held, original = [], module._Relaxation.requery
+
+    def requery(self, x, bodies, body_index, **kwargs):
+        original(self, x, bodies, body_index, **kwargs)
+        held.append((kwargs.get("local", False), x.detach().clone(), self.planes))
+
+    monkeypatch.setattr(module._Relaxation, "requery", requery)
+    solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=4, follow_planes=True)
+    trace = []
+    with torch.no_grad():
+        solver(x0, batch.cloth, f_hat=None, steps=9, trace=trace, bodies=batch.bodies, body_index=batch.body_index)
+    assert [local for local, _, _ in held] == [False, True, True, True, False, True, True, True, False]
+    for _, x, (closest, normal) in held:  # the BVH picks faces by float32 distances: near-ties within 1e-6 m
+        want_closest, want_normal = _planes(batch, x)
+        samples = _samples(x, batch.cloth)
+        torch.testing.assert_close((samples - closest).norm(dim=-1), (samples - want_closest).norm(dim=-1),
+                                   atol=1e-6, rtol=0)
+        torch.testing.assert_close(closest, want_closest, atol=1e-5, rtol=0)
+        torch.testing.assert_close(normal, want_normal, atol=1e-3, rtol=0)
+    zero = torch.zeros_like(x0)
+    for (_, _, planes), before, after in zip(held, [x0, *trace], trace):
+        assert (_potential(after, batch.cloth, zero, planes) <= _potential(before, batch.cloth, zero, planes)).all()

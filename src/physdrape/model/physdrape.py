@@ -71,7 +71,7 @@ class PhysDrape(nn.Module):
         self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
                                        margin=config.margin, contact_stiffness=config.contact_stiffness,
                                        requery_every=config.requery_every, refactor_every=config.refactor_every,
-                                       refactor_first=config.refactor_first,
+                                       refactor_first=config.refactor_first, follow_planes=config.follow_planes,
                                        coarse_levels=config.coarse_levels,
                                        coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)

@@ -42,12 +42,13 @@ class StretchingSolver(nn.Module):
     - ``kind="two_level"``: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x, with E_c
       the body-contact penalty of `physics.contact` (the training loss's and the oracle's term:
       vertices and face centroids) on closest-point planes of the body, queried every
-      `requery_every` steps so that gravity cannot pull the garment through the body mid-solve,
+      `requery_every` steps (and with `follow_planes` found again by a local walk at the steps
+      between) so that gravity cannot pull the garment through the body mid-solve,
       minimised by preconditioned nonlinear conjugate gradients (Polak-Ribière+, restarted where
       the direction does not descend). η is dimensionless (1 = a full preconditioned step). The
       preconditioner is two-level: C = K⁻¹ + P (Pᵀ K P)⁻¹ Pᵀ, K⁻¹ block Jacobi (K_i the 3×3
       diagonal block of a PSD majorant of the Hessian of E_strain + E_bend + E_c,
-      `physics.majorant.vertex_blocks`: each vertex gets the compliance of its own stiffness, so
+      `physics.majorant.vertex_compliance`: each vertex gets the compliance of its own stiffness, so
       one η suits small and large faces, soft and stiff fabrics), the second term the Galerkin
       correction on a garment's smooth patches (`physics.coarse_space.CoarseSpace`), which moves
       what block Jacobi cannot: the garment sliding, riding up or stretching as a whole. The body
@@ -74,6 +75,10 @@ class StretchingSolver(nn.Module):
             positions (the factor is held in between); None: with the body planes.
         refactor_first: the first steps that factorise the coarse space at every step (then every
             `refactor_every`): the garment's stiffness changes most while X_init's strain relaxes.
+        follow_planes: at the steps between body queries, find the samples' closest body faces
+            again by a local walk from the last ones (`BodySurface.query`'s near_faces) and hold
+            the planes there: the planes follow the garment at every step, at a fraction of a
+            full query's cost; the full queries every `requery_every` steps stay exact.
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -82,7 +87,7 @@ class StretchingSolver(nn.Module):
 
     def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
                  gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int | None = None,
-                 refactor_first: int = 0, max_halvings: int = 6,
+                 refactor_first: int = 0, follow_planes: bool = False, max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
@@ -101,6 +106,7 @@ class StretchingSolver(nn.Module):
         self.margin, self.contact_stiffness = margin, contact_stiffness
         self.requery_every, self.refactor_every, self.max_halvings = requery_every, refactor_every, max_halvings
         self.refactor_first = refactor_first
+        self.follow_planes = follow_planes
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
@@ -155,6 +161,9 @@ class StretchingSolver(nn.Module):
         for t in range(steps):
             if bodies is not None and t % self.requery_every == 0:
                 problem.requery(x, bodies, body_index)
+                phi = None
+            elif bodies is not None and self.follow_planes:
+                problem.requery(x, bodies, body_index, local=True)
                 phi = None
             force = problem.force(x)
             contact = problem.contact_blocks(x)
@@ -266,11 +275,16 @@ class _Relaxation:
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
+        self._faces: Tensor | None = None  # the samples' closest body faces at the last query
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
 
-    def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None) -> None:
+    def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
+        """Query the body at the samples of x and hold the planes; `local`: find the closest faces
+        by a walk from the last query's (`BodySurface.query`'s near_faces)."""
         with torch.no_grad():
-            q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
+            near = self._faces if local else None
+            q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, near_faces=near)
+            self._faces = q.face
         # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
         self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
         self._potential.hold(self.planes)
