@@ -10,7 +10,8 @@ its part, and one garment's launches are not split at all.
 A batch of garments on several bodies can also be split whole between threads
 (`balanced_groups`, `single_torch_thread`): each thread drapes its own group from posing to
 metrics, its torch ops inline, so that the many small ops of a drape run side by side instead
-of one after the other on torch's shared pool.
+of one after the other on torch's shared pool. BLAS calls inside such work run on one BLAS
+thread (`one_blas_thread`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 import torch
+from threadpoolctl import ThreadpoolController
 from torch import Tensor
 
 from physdrape.tensor_memo import TensorMemo
@@ -170,3 +172,39 @@ def single_torch_thread() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(before)
+
+
+@functools.cache
+def blas_controller() -> ThreadpoolController:
+    """The BLAS libraries loaded in the process (SciPy's LAPACK among them), found once."""
+    return ThreadpoolController()
+
+
+@contextlib.contextmanager
+def one_blas_thread():
+    """A context in which BLAS calls (the coarse space's band factorisations and solves) run on the
+    calling thread alone: the solver brings its own threads (torch's, or a batch's garment groups
+    side by side), and BLAS threads of its own beside them, waiting between these small calls,
+    would take those threads' cores (a drape on two torch threads took twice as long).
+
+    The BLAS thread count is process-wide: the first thread to enter sets it to 1 and the last to
+    leave restores what it was, so that threads draping side by side, entering and leaving in any
+    order, all run on one BLAS thread and leave the process's setting as they found it."""
+    global _blas_limit, _blas_users
+    with _BLAS_LOCK:
+        if not _blas_users:
+            _blas_limit = blas_controller().limit(limits=1, user_api="blas")
+        _blas_users += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _blas_users -= 1
+            if not _blas_users:
+                _blas_limit.restore_original_limits()
+                _blas_limit = None
+
+
+_BLAS_LOCK = threading.Lock()
+_blas_limit = None  # the limit in force while `_blas_users` > 0 threads are inside `one_blas_thread`
+_blas_users = 0

@@ -261,7 +261,7 @@ def test_the_band_factorisation_and_solve_run_on_one_blas_thread(monkeypatch):
     them (they would take the cores the solver's threads run on)."""
     from scipy.linalg import lapack
 
-    from physdrape.physics.coarse_space import _blas
+    from physdrape.threads import blas_controller as _blas
 
     seen = []
 
@@ -286,7 +286,8 @@ def test_the_band_factorisation_and_solve_run_on_one_blas_thread(monkeypatch):
 def test_one_blas_thread_while_any_thread_is_inside_and_the_setting_restored_after():
     """Two threads entering and leaving in interleaved order (the garment groups of a batch on two
     threads): one BLAS thread until the last leaves, then the process's own setting again."""
-    from physdrape.physics.coarse_space import _blas, _one_blas_thread
+    from physdrape.threads import blas_controller as _blas
+    from physdrape.threads import one_blas_thread as _one_blas_thread
 
     def blas_threads():
         return {info["num_threads"] for info in _blas().info() if info["user_api"] == "blas"}

@@ -44,8 +44,6 @@ factors held there (the band factors as NumPy arrays).
 from __future__ import annotations
 
 import collections
-import contextlib
-import functools
 import hashlib
 import threading
 import warnings
@@ -56,13 +54,13 @@ import scipy.sparse as sp
 import torch
 from scipy.linalg import lapack
 from scipy.sparse.csgraph import reverse_cuthill_mckee
-from threadpoolctl import ThreadpoolController
 from torch import Tensor
 
 from physdrape.geometry import topology
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.forces import links
 from physdrape.physics.majorant import pair_blocks
+from physdrape.threads import one_blas_thread
 
 __all__ = ["CoarseSpace"]
 
@@ -133,47 +131,11 @@ def _regularized_band_cholesky(band: Tensor) -> np.ndarray:
     return _regularized(band, band[:, 0], factorise)
 
 
-@functools.cache
-def _blas() -> ThreadpoolController:
-    """The BLAS libraries loaded in the process (SciPy's LAPACK among them), found once."""
-    return ThreadpoolController()
-
-
-@contextlib.contextmanager
-def _one_blas_thread():
-    """A context in which the band factorisations and solves run on the calling thread alone: the
-    solver brings its own threads (torch's, or a batch's garment groups side by side), and BLAS
-    threads of its own beside them, waiting between these small calls, would take those threads'
-    cores (a drape on two torch threads took twice as long).
-
-    The BLAS thread count is process-wide: the first thread to enter sets it to 1 and the last to
-    leave restores what it was, so that threads draping side by side, entering and leaving in any
-    order, all run on one BLAS thread and leave the process's setting as they found it."""
-    global _blas_limit, _blas_users
-    with _BLAS_LOCK:
-        if not _blas_users:
-            _blas_limit = _blas().limit(limits=1, user_api="blas")
-        _blas_users += 1
-    try:
-        yield
-    finally:
-        with _BLAS_LOCK:
-            _blas_users -= 1
-            if not _blas_users:
-                _blas_limit.restore_original_limits()
-                _blas_limit = None
-
-
-_BLAS_LOCK = threading.Lock()
-_blas_limit = None  # the limit in force while `_blas_users` > 0 threads are inside `_one_blas_thread`
-_blas_users = 0
-
-
 def _band_solve(rhs: Tensor, factors: list[np.ndarray], ranges: list[tuple[int, int]]) -> Tensor:
     """A⁻¹ rhs (C, 1) float64 on the CPU for the block-diagonal A of the garments' band factors."""
     out = torch.empty_like(rhs)
     values = rhs.detach().numpy()
-    with _one_blas_thread():
+    with one_blas_thread():
         for (c0, c1), chol in zip(ranges, factors):
             out[c0:c1] = torch.from_numpy(lapack.dpbtrs(chol, values[c0:c1], lower=1)[0])
     return out
@@ -477,7 +439,7 @@ class CoarseSpace:
                 coarse = group.operator @ stacked.reshape(pairs, 9 * count)
                 buffer[group.destination] = coarse.reshape(-1, count, 9).permute(1, 0, 2).reshape(count, -1)
         if s.banded:
-            with _one_blas_thread():
+            with one_blas_thread():
                 self._factors = [
                     _regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
                     for start, (c0, c1), w in zip(s.matrix_offsets, s.coarse_ranges, s.band_widths)]
