@@ -57,8 +57,7 @@ class ModelConfig:
     samples' closest body faces again by a local walk from the last ones
     (`BodySurface.query`'s near_faces, a few times cheaper than a BVH search), so that the
     contact planes follow the garment at every step instead of being held for requery_every
-    steps (on the test split's instances T = 15 goes from 1.020 to 1.013 times the reference, T
-    = 3 from 1.155 to 1.132: `results/eval_drift.md`).
+    steps (a lower E_total at T = 3 and at T = 15 on the test split: `results/eval_drift.md`).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]

@@ -14,9 +14,12 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
+    contact_samples,
     plane_contact_blocks,
     plane_contact_forces,
+    plane_distance,
     query_samples,
+    sample_index,
 )
 from physdrape.physics.forces import extra_blocks, internal_forces
 from physdrape.physics.majorant import vertex_compliance
@@ -279,14 +282,31 @@ class _Relaxation:
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
-        """Query the body at the samples of x and hold the planes; `local`: find the closest faces
-        by a walk from the last query's (`BodySurface.query`'s near_faces)."""
+        """Query the body at the samples of x and hold the planes.
+
+        local: only the samples within twice the contact band of their held planes, their closest
+        faces found by a walk from the last query's (`BodySurface.query`'s near_faces); the others
+        keep their planes (no contact term or block reaches them at this step: they are more than
+        a band away from the body).
+        """
         with torch.no_grad():
-            near = self._faces if local else None
-            q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, near_faces=near)
-            self._faces = q.face
-        # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
-        self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
+            if not local or self.planes is None:
+                q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
+                self._faces = q.face
+                # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
+                self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
+            else:
+                faces = self.cloth.faces
+                near = torch.nonzero(plane_distance(x.detach(), faces, *self.planes) < 2.0 * self.band)[:, 0]
+                if near.numel():
+                    samples = contact_samples(x.detach().to(bodies.verts.dtype), faces)[near]
+                    index = None if body_index is None else sample_index(body_index, faces)[near]
+                    q = bodies.query(samples, body_index=index, near_faces=self._faces[near])
+                    closest, normal = self.planes[0].clone(), self.planes[1].clone()
+                    closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
+                    self._faces = self._faces.clone()
+                    self._faces[near] = q.face
+                    self.planes = (closest, normal)
         self._potential.hold(self.planes)
 
     def potential(self, x: Tensor) -> Tensor:
