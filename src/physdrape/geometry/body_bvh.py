@@ -22,7 +22,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from physdrape.geometry import closest_point
 from physdrape.threads import parallel_map, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
@@ -86,51 +85,6 @@ def _query_kernels():
         hit[i] = wp.where(q.result, 1, 0)
 
     return wp, closest_kernel, closest_winding_kernel, ray_kernel
-
-
-@defined_once
-def _walk_kernel():
-    """Define the local search kernel (first call only)."""
-    wp = warp()
-    closest_bary = closest_point._kernels()["closest_bary"]
-
-    @wp.func
-    def distance_sq(p: wp.vec3d, verts: wp.array2d(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32), b: int,
-                    f: int):
-        a = wp.vec3d(verts[b, faces[f, 0]])
-        c1 = wp.vec3d(verts[b, faces[f, 1]])
-        c2 = wp.vec3d(verts[b, faces[f, 2]])
-        w = closest_bary(p, a, c1, c2)
-        return wp.length_sq(p - (w[0] * a + w[1] * c1 + w[2] * c2))
-
-    @wp.kernel(enable_backward=False)
-    def walk_kernel(verts: wp.array2d(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
-                    ring: wp.array2d(dtype=wp.int32), body: wp.array(dtype=wp.int32), points: wp.array(dtype=wp.vec3),
-                    start: wp.array(dtype=wp.int32), max_moves: int, face: wp.array(dtype=wp.int32),
-                    settled: wp.array(dtype=wp.int32)):
-        i = wp.tid()
-        b = body[i]
-        p = wp.vec3d(points[i])
-        f = start[i]
-        best = distance_sq(p, verts, faces, b, f)
-        done = wp.int32(0)
-        for _ in range(max_moves):
-            nxt = f
-            for k in range(ring.shape[1]):
-                g = ring[f, k]
-                if g >= 0:
-                    d = distance_sq(p, verts, faces, b, g)
-                    if d < best:
-                        best = d
-                        nxt = g
-            if nxt == f:
-                done = 1
-                break
-            f = nxt
-        face[i] = f
-        settled[i] = done
-
-    return wp, walk_kernel
 
 
 class BodyBVH:
@@ -212,36 +166,6 @@ class BodyBVH:
         while len(self._recent) > _RECENT_QUERIES:
             self._recent.popitem(last=False)
         return face.clone()
-
-    def walk_closest_faces(self, points32: Tensor, body: Tensor, start: Tensor, ring: Tensor, *,
-                           max_moves: int = 4) -> tuple[Tensor, Tensor]:
-        """Closest faces found by a local search from known faces, for points that have moved a
-        little since their closest faces were found: from each point's `start` face, move to the
-        nearest face among those sharing a vertex with the current one (`topology.
-        vertex_adjacent_faces`, `ring` (Fb, K) int32) while that is strictly nearer, at most
-        `max_moves` moves. A walk that ends with no nearer neighbour has settled on a local
-        minimum of the distance over the surface: the closest face wherever the body near the
-        point is one smooth sheet; where another part of the body comes near (an arm by the
-        torso) it can be a farther one, so callers search again where that matters.
-
-        points32 (M, 3) float32, body and start (M,) int32, contiguous, on the bodies' device.
-        Returns face (M,) int64 and settled (M,) bool (False: still moving after `max_moves`).
-        Distances in float64 from the float32 positions; ties keep the face walked first.
-        """
-        wp, walk_kernel = _walk_kernel()
-        n = points32.shape[0]
-        face = torch.empty(n, dtype=torch.int32, device=points32.device)
-        settled = torch.empty(n, dtype=torch.int32, device=points32.device)
-
-        def launch(lo: int, hi: int) -> None:
-            wp.launch(walk_kernel, dim=hi - lo, device=self._wp_device,
-                      inputs=[launch_arg(self._points32, wp.vec3), launch_arg(self._indices32.view(-1, 3), wp.int32),
-                              launch_arg(ring, wp.int32), launch_arg(body[lo:hi], wp.int32),
-                              launch_arg(points32[lo:hi], wp.vec3), launch_arg(start[lo:hi], wp.int32), int(max_moves)],
-                      outputs=[launch_arg(face[lo:hi], wp.int32), launch_arg(settled[lo:hi], wp.int32)])
-
-        self._run_chunks(launch, n, None)
-        return face.to(torch.int64), settled.bool()
 
     def ray_hits(self, points32: Tensor, body: Tensor, directions32: Tensor, *, threads: int | None = None) -> Tensor:
         """Whether the ray from each point along its direction hits its body's surface, shape (M,)

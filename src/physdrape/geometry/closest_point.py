@@ -124,7 +124,7 @@ def _kernels() -> dict:
             n = vertex_normals[b, faces[f, k]]
         out[i] = n
 
-    return {"wp": wp, "closest": closest_kernel, "pseudo_normal": pseudo_normal_kernel, "closest_bary": closest_bary}
+    return {"wp": wp, "closest": closest_kernel, "pseudo_normal": pseudo_normal_kernel}
 
 
 def _vec3(wp, t: Tensor):

@@ -61,7 +61,7 @@ from physdrape.geometry.body_bvh import BodyBVH
 from physdrape.geometry.closest_point import closest_point_float64, feature_pseudo_normals
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
-from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces, vertex_adjacent_faces
+from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
 
 __all__ = [
     "DOUBT_RADIUS_EDGES",
@@ -101,12 +101,11 @@ _PROBE_OFFSET = 1e-4
 
 
 @functools.lru_cache(maxsize=8)
-def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per body topology (computed once per mesh): each face's neighbours across its edges (F, 3),
-    the vertices on a hole's border, and each face's vertex-adjacent faces (F, K) (the local
-    search's steps, `BodyBVH.walk_closest_faces`)."""
+def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per body topology (computed once per mesh): each face's neighbours across its edges (F, 3)
+    and the vertices on a hole's border."""
     tri = np.frombuffer(faces, dtype=np.int64).reshape(num_faces, 3)
-    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri)), vertex_adjacent_faces(tri)
+    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri))
 
 
 @dataclass(frozen=True)
@@ -183,10 +182,9 @@ class BodySurface:
         verts = check_verts(verts)
         self.faces = check_faces(faces, verts.shape[1], verts.device)
         self._faces32 = self.faces.to(torch.int32).contiguous()  # what the kernels read
-        edge_nbr, border, ring = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
+        edge_nbr, border = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
         self._edge_nbr = torch.from_numpy(edge_nbr).to(verts.device)
         self._border = torch.from_numpy(border).to(verts.device)
-        self._ring = torch.from_numpy(ring).to(verts.device)
         self._build(verts)
 
     # -- structure ---------------------------------------------------------------------------
@@ -225,7 +223,6 @@ class BodySurface:
         one.sign_method, one.search_threads = self.sign_method, self.search_threads
         one.near_tol, one.winding_accuracy = self.near_tol, self.winding_accuracy
         one.faces, one._faces32, one._edge_nbr, one._border = self.faces, self._faces32, self._edge_nbr, self._border
-        one._ring = self._ring
         one.verts = self.verts[index:index + 1]
         one._verts64 = None
         one._vertex_normals = None if self._vertex_normals is None else self._vertex_normals[index:index + 1]
@@ -386,7 +383,7 @@ class BodySurface:
         differentiated (used for the sign, and as the direction of on-surface points)."""
         return feature_pseudo_normals(bary, body, face, self._faces32, *self._feature_normals()).to(bary.dtype)
 
-    def query(self, points: Tensor, *, body_index: Tensor | None = None, near_faces: Tensor | None = None) -> SurfaceQuery:
+    def query(self, points: Tensor, *, body_index: Tensor | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
 
         Args:
@@ -394,14 +391,6 @@ class BodySurface:
                 (N, 3) with ``body_index``, or (N, 3) when the surface holds one body. Same dtype
                 as the body verts.
             body_index: for packed points, which body each point belongs to, shape (N,) int.
-            near_faces: for points that have moved a little since an earlier query, the closest
-                faces it found (its ``face``, same leading shape): the closest faces are then found
-                by a local search from those (`BodyBVH.walk_closest_faces`, a few times cheaper
-                than the BVH search), and searched in the BVH only for the points whose walk
-                does not settle or settles on a doubtful face (`doubtful_faces`: where another
-                part of the body comes near, a walk can settle on a farther sheet). Elsewhere the
-                result is the BVH's wherever the body near the point is one smooth sheet
-                (a tie between faces at the same distance can name another face).
 
         Returns:
             A ``SurfaceQuery`` whose fields have the leading shape ``points.shape[:-1]``.
@@ -410,11 +399,8 @@ class BodySurface:
         with torch.no_grad():
             x32 = x.detach().to(torch.float32).contiguous()
             body32 = body.to(torch.int32).contiguous()
-            if near_faces is None:
-                face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
-                                               threads=self.search_threads, reuse=True)[0]
-            else:
-                face = self._walk(x32, body32, near_faces.reshape(-1))
+            face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
+                                           threads=self.search_threads, reuse=True)[0]
 
         p, bary = closest_point_float64(x.to(torch.float64).contiguous(), self._flat_verts64(),
                                         self._corner_rows(body32, face))
@@ -450,19 +436,6 @@ class BodySurface:
             bary=bary.reshape(*lead, 3),
             inside=inside.reshape(lead),
         )
-
-    def _walk(self, x32: Tensor, body32: Tensor, start: Tensor) -> Tensor:
-        """Closest faces by the local search from `start` (`query`'s near_faces), searched again
-        in the BVH where the walk does not settle or settles on a doubtful face."""
-        if start.shape != body32.shape:
-            raise ValueError(f"near_faces must name one face per point ({body32.shape[0]}), got {tuple(start.shape)}")
-        face, settled = self._bvh.walk_closest_faces(x32, body32, start.to(torch.int32).contiguous(), self._ring)
-        if self.sign_method is SignMethod.WINDING_NUMBER:
-            settled &= ~self.doubtful_faces()[body32.long(), face]
-        again = torch.nonzero(~settled)[:, 0]
-        if again.numel():
-            face[again] = self._search(x32[again].contiguous(), body32[again].contiguous())[0]
-        return face
 
     @torch.no_grad()
     def inside(self, points: Tensor, *, body_index: Tensor | None = None) -> Tensor:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 
 def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -89,22 +88,6 @@ def edge_neighbour_faces(faces: np.ndarray) -> np.ndarray:
     partner[order[prv[unpaired]]] = order[prv[unpaired] - 1]
     face_of = np.where(partner >= 0, partner % num_faces, -1)
     return face_of.reshape(3, num_faces).T.copy()
-
-
-def vertex_adjacent_faces(faces: np.ndarray) -> np.ndarray:
-    """For each face, the faces that share a vertex with it, itself included, padded with -1:
-    shape (F, K) int32, K the largest such count, each row ascending."""
-    num_faces = faces.shape[0]
-    num_verts = int(faces.max()) + 1 if num_faces else 0
-    incidence = sp.csr_matrix((np.ones(3 * num_faces), (np.repeat(np.arange(num_faces), 3), faces.reshape(-1))),
-                              shape=(num_faces, num_verts))
-    touching = (incidence @ incidence.T).tocsr()
-    touching.sort_indices()
-    counts = np.diff(touching.indptr)
-    table = np.full((num_faces, int(counts.max()) if num_faces else 0), -1, dtype=np.int32)
-    rows = np.repeat(np.arange(num_faces), counts)
-    table[rows, np.arange(touching.nnz) - touching.indptr[rows]] = touching.indices
-    return table
 
 
 def boundary_edges(faces: np.ndarray) -> np.ndarray:

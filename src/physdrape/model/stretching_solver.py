@@ -45,8 +45,8 @@ class StretchingSolver(nn.Module):
     - ``kind="two_level"``: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x, with E_c
       the body-contact penalty of `physics.contact` (the training loss's and the oracle's term:
       vertices and face centroids) on closest-point planes of the body, queried every
-      `requery_every` steps (and with `follow_planes` found again by a local walk at the steps
-      between) so that gravity cannot pull the garment through the body mid-solve,
+      `requery_every` steps (and with `follow_planes` queried again at the steps between where
+      the garment is near the body) so that gravity cannot pull the garment through the body mid-solve,
       minimised by preconditioned nonlinear conjugate gradients (Polak-Ribière+, restarted where
       the direction does not descend). η is dimensionless (1 = a full preconditioned step). The
       preconditioner is two-level: C = K⁻¹ + P (Pᵀ K P)⁻¹ Pᵀ, K⁻¹ block Jacobi (K_i the 3×3
@@ -78,10 +78,10 @@ class StretchingSolver(nn.Module):
             positions (the factor is held in between); None: with the body planes.
         refactor_first: the first steps that factorise the coarse space at every step (then every
             `refactor_every`): the garment's stiffness changes most while X_init's strain relaxes.
-        follow_planes: at the steps between body queries, find the samples' closest body faces
-            again by a local walk from the last ones (`BodySurface.query`'s near_faces) and hold
-            the planes there: the planes follow the garment at every step, at a fraction of a
-            full query's cost; the full queries every `requery_every` steps stay exact.
+        follow_planes: at the steps between body queries, query the body again at the samples
+            within twice `contact_band` of their held planes (the others, out of the contact's
+            reach at that step, keep theirs): the planes follow the garment where it touches
+            the body at every step, for a fraction of a full query's cost.
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -278,21 +278,18 @@ class _Relaxation:
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
-        self._faces: Tensor | None = None  # the samples' closest body faces at the last query
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
         """Query the body at the samples of x and hold the planes.
 
-        local: only the samples within twice the contact band of their held planes, their closest
-        faces found by a walk from the last query's (`BodySurface.query`'s near_faces); the others
+        local: only the samples within twice the contact band of their held planes; the others
         keep their planes (no contact term or block reaches them at this step: they are more than
         a band away from the body).
         """
         with torch.no_grad():
             if not local or self.planes is None:
                 q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
-                self._faces = q.face
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
             else:
@@ -301,11 +298,9 @@ class _Relaxation:
                 if near.numel():
                     samples = contact_samples(x.detach().to(bodies.verts.dtype), faces)[near]
                     index = None if body_index is None else sample_index(body_index, faces)[near]
-                    q = bodies.query(samples, body_index=index, near_faces=self._faces[near])
+                    q = bodies.query(samples, body_index=index)
                     closest, normal = self.planes[0].clone(), self.planes[1].clone()
                     closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
-                    self._faces = self._faces.clone()
-                    self._faces[near] = q.face
                     self.planes = (closest, normal)
         self._potential.hold(self.planes)
 

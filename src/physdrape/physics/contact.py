@@ -54,17 +54,14 @@ def sample_index(per_vertex: Tensor, faces: Tensor) -> Tensor:
     return torch.cat([per_vertex, per_vertex[faces[:, 0]]])
 
 
-def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None, *,
-                  near_faces: Tensor | None = None) -> SurfaceQuery:
+def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None) -> SurfaceQuery:
     """Body query of the samples of x (V, 3) [m], each against its vertex's body vert_body (V,)
-    (None: the surface holds one body); near_faces (V + F,): the samples' closest faces at an
-    earlier query, for a local search from them (`BodySurface.query`).
+    (None: the surface holds one body).
 
     The samples are formed in the body's dtype; the query's fields have leading shape (V + F,).
     """
     samples = contact_samples(x.to(bodies.verts.dtype), faces)
-    return bodies.query(samples, body_index=None if vert_body is None else sample_index(vert_body, faces),
-                        near_faces=near_faces)
+    return bodies.query(samples, body_index=None if vert_body is None else sample_index(vert_body, faces))
 
 
 def contact_depth(distance: Tensor, *, margin: float) -> Tensor:
