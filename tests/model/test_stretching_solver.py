@@ -154,7 +154,7 @@ def test_coarse_space_is_refactored_at_the_first_steps_then_every_refactor_every
 
 
 def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch):
-    """With follow_planes the samples within twice the contact band of their planes get, at every
+    """With follow_planes the samples within the contact band of their planes get, at every
     step, the planes of a body query at that step's positions (found by the local walk from the
     last step's faces); the others keep theirs. Each step still lowers Φ on the planes it holds."""
     import physdrape.model.stretching_solver as module
@@ -179,7 +179,7 @@ def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch)
         samples = _samples(x, batch.cloth)
         near = torch.ones(len(samples), dtype=torch.bool)
         if local:
-            near = ((samples - before[0]) * before[1]).sum(-1) < 2 * band
+            near = ((samples - before[0]) * before[1]).sum(-1) < band
             assert torch.equal(closest[~near], before[0][~near]) and torch.equal(normal[~near], before[1][~near])
             followed, kept = followed + int(near.sum()), kept + int((~near).sum())
         want_closest, want_normal = _planes(batch, x)

@@ -54,7 +54,7 @@ class ModelConfig:
     steps that factorise at every step, then every refactor_every (X_init's strain relaxes most
     in the first steps, and a factor from X_init holds the coarse moves back after it has;
     `results/solver_settings.md`). follow_planes: at the steps between body queries, query the
-    body again at the samples near it (within twice the solver's contact band of their planes),
+    body again at the samples near it (within the solver's contact band of their planes),
     so that the contact planes follow the garment where it touches the body instead of being
     held for requery_every steps (a lower E_total at T = 3 and at T = 15 on the test split:
     `results/eval_drift.md`).

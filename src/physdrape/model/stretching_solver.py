@@ -79,7 +79,7 @@ class StretchingSolver(nn.Module):
         refactor_first: the first steps that factorise the coarse space at every step (then every
             `refactor_every`): the garment's stiffness changes most while X_init's strain relaxes.
         follow_planes: at the steps between body queries, query the body again at the samples
-            within twice `contact_band` of their held planes (the others, out of the contact's
+            within `contact_band` of their held planes (the others, out of the contact's
             reach at that step, keep theirs): the planes follow the garment where it touches
             the body at every step, for a fraction of a full query's cost.
         max_halvings: step halvings before a step that does not lower Φ is skipped.
@@ -283,9 +283,9 @@ class _Relaxation:
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
         """Query the body at the samples of x and hold the planes.
 
-        local: only the samples within twice the contact band of their held planes; the others
-        keep their planes (no contact term or block reaches them at this step: they are more than
-        a band away from the body).
+        local: only the samples within the contact band of their held planes; the others keep
+        theirs (no contact term or block reaches them at this step: they are more than a band
+        away from the body).
         """
         with torch.no_grad():
             if not local or self.planes is None:
@@ -294,7 +294,7 @@ class _Relaxation:
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
             else:
                 faces = self.cloth.faces
-                near = torch.nonzero(plane_distance(x.detach(), faces, *self.planes) < 2.0 * self.band)[:, 0]
+                near = torch.nonzero(plane_distance(x.detach(), faces, *self.planes) < self.band)[:, 0]
                 if near.numel():
                     samples = contact_samples(x.detach().to(bodies.verts.dtype), faces)[near]
                     index = None if body_index is None else sample_index(body_index, faces)[near]
