@@ -1,6 +1,7 @@
 """How far the model's energies on the test instances have moved since `results/eval.json` was written.
 
-    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--out results/eval_drift]
+    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--follow-planes]
+        [--out results/eval_drift]
 
 Reruns the model rows of the evaluation (GNN only, PhysDrape at T = 3 and T = 15, and the solver
 alone at T = 3 and T = 15) on the evaluation's test instances with the bundled model (or
@@ -46,6 +47,8 @@ def main() -> None:
     parser.add_argument("--eval", default="results/eval.json", help="the evaluation record to compare with")
     parser.add_argument("--checkpoint", default="", help="the model to run (default: the bundled one)")
     parser.add_argument("--out", default="results/eval_drift")
+    parser.add_argument("--follow-planes", action="store_true",
+                        help="run the solver with its body planes followed at every step (`Draper(follow_planes=True)`)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     with open(args.eval) as handle:
@@ -63,6 +66,9 @@ def main() -> None:
     if checkpoint.is_relative_to(Path.cwd()):
         checkpoint = checkpoint.relative_to(Path.cwd())  # a path inside the repository names no machine
     models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
+    for model in models.values():
+        if args.follow_planes:
+            model.solver.follow_planes = True
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
     b2g = {row: [] for row in ROWS}
@@ -93,7 +99,9 @@ def main() -> None:
     lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
              *source_lines(command, out["provenance"]),
              f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
-             f"instances, its references; model `{checkpoint}`; 1 torch thread; load average "
+             f"instances, its references; model `{checkpoint}`"
+             + (", the solver's planes followed at every step (`--follow-planes`)" if args.follow_planes else "")
+             + "; 1 torch thread; load average "
              + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
              "| row | E_total / reference, recorded | now | change | largest change of one instance "
              "| B2G % (mean), recorded | now |",

@@ -182,3 +182,23 @@ def test_pose_with_arms_through_the_torso_is_refused(draper, anny_body):
         draper.drape("default", pose=pose.numpy())
     unchecked = Draper(draper.checkpoint, check_pose=False)
     assert len(unchecked.drape("default", pose=pose.numpy())) == 1
+
+
+def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpoint, monkeypatch):
+    """Draper(follow_planes=True) runs the solver with followed planes (a local body query at the
+    steps between full ones); None keeps the checkpoint's setting."""
+    import physdrape.model.stretching_solver as solver_module
+
+    default = Draper(tiny_checkpoint, steps=4, body=anny_body)
+    follow = Draper(tiny_checkpoint, steps=4, body=anny_body, follow_planes=True)
+    assert not default.model.solver.follow_planes and not default.model_config.follow_planes
+    assert follow.model.solver.follow_planes and follow.model_config.follow_planes
+    calls, original = [], solver_module._Relaxation.requery
+
+    def requery(self, x, bodies, body_index, **kwargs):
+        calls.append(kwargs.get("local", False))
+        return original(self, x, bodies, body_index, **kwargs)
+
+    monkeypatch.setattr(solver_module._Relaxation, "requery", requery)
+    [res] = follow.drape("default")
+    assert calls == [False, True, True, False] and res.metrics["b2g_percent"] == 0.0

@@ -16,7 +16,7 @@ import threading
 import time
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +77,9 @@ class Draper:
         checkpoint: a checkpoint directory (model.safetensors + config.json) or a run directory
             (its ``latest``); None = the bundled model (`physdrape.checkpoint.bundled_model`).
         steps: solver steps T at inference (paper: 15).
+        follow_planes: the solver's body planes followed at every step where the garment is near
+            the body (`StretchingSolver`'s follow_planes: a lower energy at the same T for more
+            body queries, `results/eval_drift_follow_planes.md`); None: the checkpoint's setting.
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
             `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
         smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
@@ -100,7 +103,7 @@ class Draper:
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
                  dtype: torch.dtype = DEFAULT_DTYPE, check_pose: bool = True, arm_contact_tolerance: int = 20,
                  smpl_model: str | Path | None = None, smpl_gender: str = "neutral",
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu", follow_planes: bool | None = None) -> None:
         if not isinstance(steps, int) or steps < 0:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         if dtype not in (torch.float32, torch.float64):
@@ -122,6 +125,9 @@ class Draper:
         except ckpt.CheckpointError as exc:
             raise DrapeError(f"cannot load the PhysDrape model: {exc}") from None
         self.model.to(self.device)
+        if follow_planes is not None:
+            self.model.config = replace(self.model.config, follow_planes=bool(follow_planes))
+            self.model.solver.follow_planes = bool(follow_planes)
         self.model_config = self.model.config
         self.checkpoint = path
         self.steps = steps

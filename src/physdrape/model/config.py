@@ -56,8 +56,8 @@ class ModelConfig:
     `results/solver_settings.md`). follow_planes: at the steps between body queries, query the
     body again at the samples near it (within the solver's contact band of their planes),
     so that the contact planes follow the garment where it touches the body instead of being
-    held for requery_every steps (a lower E_total at T = 3 and at T = 15 on the test split:
-    `results/eval_drift.md`).
+    held for requery_every steps (a lower E_total at T = 3 and at T = 15 on the test split,
+    `results/eval_drift_follow_planes.md`, for more body queries per drape; off by default).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
@@ -95,7 +95,7 @@ class ModelConfig:
     requery_every: int = 3
     refactor_every: int = 3
     refactor_first: int = 3
-    follow_planes: bool = True
+    follow_planes: bool = False
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05
