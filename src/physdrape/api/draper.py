@@ -77,9 +77,8 @@ class Draper:
         checkpoint: a checkpoint directory (model.safetensors + config.json) or a run directory
             (its ``latest``); None = the bundled model (`physdrape.checkpoint.bundled_model`).
         steps: solver steps T at inference (paper: 15).
-        follow_planes: the solver's body planes followed at every step where the garment is near
-            the body (`StretchingSolver`'s follow_planes: a lower energy at the same T for more
-            body queries, `results/eval_drift_follow_planes.md`); None: the checkpoint's setting.
+        follow_planes: the solver's body planes followed at every step (`ModelConfig`'s
+            follow_planes: a lower energy at the same T for more body queries); None: the checkpoint's.
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
             `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
         smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
