@@ -12,8 +12,8 @@ a sample's distance to its held plane and its penalty); this module adds only th
 garment, in one launch with one thread per face (its strain and its centroid's contact), per hinge
 (its bending) and per vertex (its gravity, its contact and the external force's work), each adding
 its share into its garment's total. Composed from the per-element launches, with per-element
-outputs that torch sums per garment, the same Φ costs about twice as much on the CPU: the
-arithmetic is the same, the difference is per-op overhead. The terms that tie vertices beyond
+outputs that torch sums per garment, the same Φ costs more in per-op overhead than in
+arithmetic on the CPU. The terms that tie vertices beyond
 the elements (grip, stitches, layers) are added by their torch functions (`forces.tie_energy_terms`).
 
 Not differentiated (a line search compares values); computed in float64 whatever x's dtype. On a
