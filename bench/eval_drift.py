@@ -66,8 +66,8 @@ def main() -> None:
     if checkpoint.is_relative_to(Path.cwd()):
         checkpoint = checkpoint.relative_to(Path.cwd())  # a path inside the repository names no machine
     models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
-    for model in models.values():
-        if args.follow_planes:
+    if args.follow_planes:
+        for model in models.values():
             model.solver.follow_planes = True
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}

@@ -14,12 +14,10 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
-    contact_samples,
     plane_contact_blocks,
     plane_contact_forces,
     plane_distance,
     query_samples,
-    sample_index,
 )
 from physdrape.physics.forces import extra_blocks, internal_forces
 from physdrape.physics.majorant import vertex_compliance
@@ -293,12 +291,9 @@ class _Relaxation:
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
             else:
-                faces = self.cloth.faces
-                near = torch.nonzero(plane_distance(x.detach(), faces, *self.planes) < self.band)[:, 0]
+                near = torch.nonzero(plane_distance(x.detach(), self.cloth.faces, *self.planes) < self.band)[:, 0]
                 if near.numel():
-                    samples = contact_samples(x.detach().to(bodies.verts.dtype), faces)[near]
-                    index = None if body_index is None else sample_index(body_index, faces)[near]
-                    q = bodies.query(samples, body_index=index)
+                    q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, rows=near)
                     closest, normal = self.planes[0].clone(), self.planes[1].clone()
                     closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
                     self.planes = (closest, normal)

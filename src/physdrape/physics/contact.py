@@ -54,14 +54,19 @@ def sample_index(per_vertex: Tensor, faces: Tensor) -> Tensor:
     return torch.cat([per_vertex, per_vertex[faces[:, 0]]])
 
 
-def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None) -> SurfaceQuery:
+def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None, *,
+                  rows: Tensor | None = None) -> SurfaceQuery:
     """Body query of the samples of x (V, 3) [m], each against its vertex's body vert_body (V,)
-    (None: the surface holds one body).
+    (None: the surface holds one body); rows: only these samples (indices into the V + F).
 
-    The samples are formed in the body's dtype; the query's fields have leading shape (V + F,).
+    The samples are formed in the body's dtype; the query's fields have leading shape (V + F,),
+    or that of rows.
     """
     samples = contact_samples(x.to(bodies.verts.dtype), faces)
-    return bodies.query(samples, body_index=None if vert_body is None else sample_index(vert_body, faces))
+    index = None if vert_body is None else sample_index(vert_body, faces)
+    if rows is not None:
+        samples, index = samples[rows], None if index is None else index[rows]
+    return bodies.query(samples, body_index=index)
 
 
 def contact_depth(distance: Tensor, *, margin: float) -> Tensor:
