@@ -101,9 +101,15 @@ def export_base(commit: str, dest: Path) -> Path:
     return dest
 
 
+def _python_path(*paths: Path) -> str:
+    """PYTHONPATH for a worker: the sources timed first, then the caller's own entries (where
+    dependencies installed outside site-packages live)."""
+    return os.pathsep.join([*(str(p) for p in paths), *filter(None, [os.environ.get("PYTHONPATH")])])
+
+
 def _run_worker(paths: list[Path], packages: list[str], repeats: int, device: str,
                 threads: int) -> dict[str, dict[str, list[float]]]:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(str(p) for p in paths), OMP_NUM_THREADS=str(threads))
+    env = dict(os.environ, PYTHONPATH=_python_path(*paths), OMP_NUM_THREADS=str(threads))
     proc = subprocess.run([sys.executable, __file__, "--worker", "--repeats", str(repeats), "--device", device,
                            "--threads", str(threads), "--packages", *packages], env=env, capture_output=True,
                           text=True, cwd=ROOT, check=False)
@@ -113,7 +119,7 @@ def _run_worker(paths: list[Path], packages: list[str], repeats: int, device: st
 
 
 def _cold_cli(src: Path, package: str, repeats: int, threads: int) -> list[float]:
-    env = dict(os.environ, PYTHONPATH=str(src), OMP_NUM_THREADS=str(threads))
+    env = dict(os.environ, PYTHONPATH=_python_path(src), OMP_NUM_THREADS=str(threads))
     times = []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(repeats):
