@@ -183,3 +183,29 @@ def test_fit_bad_inputs(tmp_path, default_obj, capsys):
 def test_train_subcommand_still_parses():
     args = build_parser().parse_args(["train", "--config", "c.yaml", "--run-dir", "r", "--steps", "3"])
     assert args.command == "train" and args.steps == 3 and args.func.__name__ == "cmd_train"
+
+
+def test_train_init_from_overrides_the_configs_and_a_recipe_refuses_it(tmp_path, monkeypatch, capsys):
+    from physdrape.train import data
+    from physdrape.train import trainer
+
+    seen = {}
+
+    class Recorder:
+        def __init__(self, config, source, run_dir, device=None):
+            seen.update(config=config, run_dir=run_dir)
+
+        def run(self, resume=False):
+            return []
+
+    monkeypatch.setattr(trainer, "Trainer", Recorder)
+    monkeypatch.setattr(data, "DrapeSource", lambda *args, **kwargs: None)
+    root = Path(__file__).resolve().parents[2]
+    config = str(root / "configs/global/full_energy.yaml")
+    assert main(["train", "--config", config, "--run-dir", str(tmp_path / "r"), "--init-from", "elsewhere"]) == 0
+    assert seen["config"].optim.init_from == "elsewhere"
+    assert main(["train", "--config", config, "--run-dir", str(tmp_path / "r")]) == 0
+    assert seen["config"].optim.init_from == "runs/gnn_energy"  # the config's own
+    recipe = ["train", "--recipe", str(root / "configs/recipes/shipped.yaml"), "--run-dir", str(tmp_path / "s")]
+    assert main([*recipe, "--init-from", "elsewhere"]) == 2
+    assert "--init-from" in capsys.readouterr().err

@@ -154,6 +154,20 @@ def test_coarse_correction_is_differentiable_in_the_forces_and_needs_a_factor():
     torch.testing.assert_close(r.grad, coarse.solve(v))  # a symmetric linear map: its own adjoint
 
 
+def test_fit_is_the_least_squares_fit_by_the_patches_and_is_differentiable():
+    batch, cloth, _ = _batch()
+    space = CoarseSpace(cloth)
+    dense, _ = _dense_prolongation(batch)
+    field = torch.randn(cloth.num_verts, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
+    want = dense @ np.linalg.lstsq(dense, field.reshape(-1).numpy(), rcond=None)[0]
+    got = space.fit(field)
+    np.testing.assert_allclose(got.reshape(-1).numpy(), want, atol=1e-10)
+    assert float((field - got).norm()) > 0.5 * float(field.norm())  # a noise field is mostly not smooth
+    torch.testing.assert_close(space.fit(got), got)  # a projection: the fit of a fit is itself
+    assert space.fit(field.float()).dtype == torch.float32
+    assert torch.autograd.gradcheck(space.fit, (field[:, :1].expand(-1, 3).clone().requires_grad_(True),))
+
+
 def test_coarse_space_checks_its_arguments():
     batch, cloth, _ = _batch()
     with pytest.raises(ValueError, match="levels"):

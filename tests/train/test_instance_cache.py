@@ -60,6 +60,9 @@ def test_teacher_term_pulls_toward_the_teacher(tmp_path, tiny_split, anny_body):
     plain, _ = drape_loss(x, d.cloth, d.bodies, d.body_index, LossConfig(), **contact)
     distance = teacher_distance(x, sample.teacher, d.cloth)
     torch.testing.assert_close(loss, plain + 1e3 * distance.mean())
+    coarse, _ = drape_loss(x, d.cloth, d.bodies, d.body_index, LossConfig(teacher_weight=1e3, teacher_levels=2),
+                           teacher=sample.teacher, **contact)
+    torch.testing.assert_close(coarse, plain + 1e3 * teacher_distance(x, sample.teacher, d.cloth, levels=2).mean())
     # its gradient is 2 m_i (x_i − t_i) / Σm per garment
     (grad,) = torch.autograd.grad(distance.sum(), x)
     mass = d.cloth.mass[:, None] / d.cloth.sum_per_garment(d.cloth.mass, d.cloth.vert_garment)[d.cloth.vert_garment, None]

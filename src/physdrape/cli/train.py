@@ -26,6 +26,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     config = load_config(TrainConfig, args.config)
     if args.steps is not None:
         config = replace(config, optim=replace(config.optim, steps=args.steps))
+    if args.init_from is not None:
+        config = replace(config, optim=replace(config.optim, init_from=args.init_from))
     distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -51,8 +53,8 @@ def _train_recipe(args: argparse.Namespace) -> int:
     from physdrape.train.data import DrapeSource
     from physdrape.train.recipe import run_recipe
 
-    if args.steps is not None:
-        raise CLIError("--steps overrides one config's optim.steps; a recipe's stages set their own")
+    if args.steps is not None or args.init_from is not None:
+        raise CLIError("--steps and --init-from override one config's optim section; a recipe's stages set their own")
     if int(os.environ.get("WORLD_SIZE", "1")) > 1:
         raise CLIError("a recipe runs in one process; run its stages with --config under torchrun instead")
     if args.threads:
@@ -81,6 +83,8 @@ def add_parser(sub) -> None:
     train.add_argument("--run-dir", required=True, help="directory for checkpoints, metrics.jsonl, TensorBoard")
     train.add_argument("--resume", action="store_true", help="continue from the run directory's latest checkpoint")
     train.add_argument("--steps", type=int, help="override optim.steps")
+    train.add_argument("--init-from", help="override optim.init_from: the checkpoint (or run directory) a new run "
+                       "starts from, e.g. src/physdrape/assets/models/cpu_default to fine-tune the bundled model")
     train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
     add_device_argument(train)
     train.set_defaults(func=cmd_train, interrupted=_interrupted)

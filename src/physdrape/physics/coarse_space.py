@@ -416,6 +416,7 @@ class CoarseSpace:
             self._s = _STRUCTURES[key]
         self.num_patches = self._s.num_patches
         self._factors: list[Tensor] | None = None
+        self._gram: list[Tensor] | None = None
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
@@ -446,6 +447,22 @@ class CoarseSpace:
         else:
             self._factors = [_regularized_cholesky(buffer[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
                              for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
+
+    def fit(self, field: Tensor) -> Tensor:
+        """The coarse space's least-squares fit of a per-vertex field (V, 3): P c with c minimising
+        ‖P c − field‖² garment by garment (P (PᵀP)⁻¹ Pᵀ field); differentiable in the field."""
+        s = self._s
+        if self._gram is None:  # each garment's PᵀP (block diagonal in P's columns), factorised once
+            prolong = sp.csr_matrix((s.prolong.values().cpu().numpy(), s.prolong.col_indices().cpu().numpy(),
+                                     s.prolong.crow_indices().cpu().numpy()), shape=tuple(s.prolong.shape))
+            gram = (prolong.T @ prolong).tocsc()
+            self._gram = [torch.linalg.cholesky(torch.from_numpy(gram[c0 // 3:c1 // 3, c0 // 3:c1 // 3].toarray())
+                                                .to(s.prolong.device))
+                          for c0, c1 in s.coarse_ranges]
+        coarse = s.restrict @ field.double()
+        coarse = torch.cat([torch.cholesky_solve(coarse[c0 // 3:c1 // 3], chol)
+                            for (c0, c1), chol in zip(s.coarse_ranges, self._gram)])
+        return (s.prolong @ coarse).to(field.dtype)
 
     def solve(self, r: Tensor) -> Tensor:
         """P (Pᵀ K P)⁻¹ Pᵀ r for forces r (V, 3) [N] → displacements (V, 3) [m]; needs `factor`."""

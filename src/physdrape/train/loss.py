@@ -11,6 +11,7 @@ from torch import Tensor
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model.config import ModelConfig
 from physdrape.physics.cloth import Cloth
+from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.energy import drape_energies
 from physdrape.train.instances import teacher_solver
 
@@ -31,6 +32,12 @@ class LossConfig:
     also says how far the garment as a whole still has to settle, which a few solver steps in the
     loop cannot show. 0 = the paper's loss (and no teacher needed).
 
+    teacher_levels: 0 compares the drape with the teacher vertex by vertex; L > 0 compares only
+    the smooth part of their difference, its least-squares fit on the patches of the solver's
+    coarse space at level L (`CoarseSpace.fit`; 2: patches of 6–15 vertices). The teacher then
+    says where the garment as a whole should go and leaves each vertex's local settling to the
+    energy: the solver relaxes the local strain within a few steps, not the garment-wide slide.
+
     lookahead_weight [J/m²] and lookahead_steps: adds, per garment, lookahead_weight × the
     mass-weighted mean squared distance [m²] of the drape to where `lookahead_steps` steps of the
     teacher's solver take it from there (computed without gradient by the trainer,
@@ -44,6 +51,7 @@ class LossConfig:
 
     per_garment_scale: str = "none"
     teacher_weight: float = 0.0
+    teacher_levels: int = 0
     lookahead_weight: float = 0.0
     lookahead_steps: int = 3
 
@@ -52,14 +60,21 @@ class LossConfig:
             raise ValueError(f"LossConfig.per_garment_scale must be 'none' or 'initial', got {self.per_garment_scale!r}")
         if not self.teacher_weight >= 0:
             raise ValueError(f"LossConfig.teacher_weight must be ≥ 0 [J/m²], got {self.teacher_weight!r}")
+        if not isinstance(self.teacher_levels, int) or self.teacher_levels < 0:
+            raise ValueError(f"LossConfig.teacher_levels must be an integer ≥ 0 (0: vertex by vertex, L: the fit "
+                             f"on the coarse patches of level L), got {self.teacher_levels!r}")
         if not self.lookahead_weight >= 0 or self.lookahead_steps < 1:
             raise ValueError(f"LossConfig needs lookahead_weight ≥ 0 [J/m²] and lookahead_steps ≥ 1, got "
                              f"{self.lookahead_weight!r} and {self.lookahead_steps!r}")
 
 
-def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth) -> Tensor:
-    """Mass-weighted mean squared distance of x to the teacher drape per garment [m²] (G,)."""
-    weighted = cloth.mass * (x - teacher).pow(2).sum(-1)
+def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth, levels: int = 0) -> Tensor:
+    """Mass-weighted mean squared distance of x to the teacher drape per garment [m²] (G,); with
+    `levels` > 0, of the fit of x − teacher on the coarse patches of that level (`LossConfig`)."""
+    difference = x - teacher
+    if levels > 0:
+        difference = CoarseSpace(cloth, levels=levels).fit(difference)
+    weighted = cloth.mass * difference.pow(2).sum(-1)
     return cloth.sum_per_garment(weighted, cloth.vert_garment) / cloth.sum_per_garment(cloth.mass, cloth.vert_garment)
 
 
@@ -103,7 +118,7 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
         raise ValueError("LossConfig.teacher_weight > 0 needs the teacher drapes of an instance cache: set "
                          "data.instances to a folder (built on first use)")
     if teacher is not None:
-        distance = teacher_distance(x, teacher, cloth)
+        distance = teacher_distance(x, teacher, cloth, config.teacher_levels)
         logged["teacher_rms"] = distance.detach().mean().sqrt()
         if config.teacher_weight > 0:
             total = total + config.teacher_weight * distance
