@@ -186,8 +186,7 @@ def test_train_subcommand_still_parses():
 
 
 def test_train_init_from_overrides_the_configs_and_a_recipe_refuses_it(tmp_path, monkeypatch, capsys):
-    from physdrape.train import data
-    from physdrape.train import trainer
+    from physdrape.train import data, trainer
 
     seen = {}
 
