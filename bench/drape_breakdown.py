@@ -1,6 +1,6 @@
 """Where a warm drape's time goes: the phases of `Draper.drape` of the default T-shirt, timed inside.
 
-    .venv/bin/python bench/drape_breakdown.py [--repeats 9] [--out results/drape_breakdown]
+    .venv/bin/python bench/drape_breakdown.py [--repeats 9] [--device cpu|cuda] [--out results/drape_breakdown]
 
 The bundled model at T = 15 on one torch thread, as `bench/bench_drape.py` times it end to end:
 the same pose again (the body posed and its surface built before), and a new pose per call (drawn
@@ -21,8 +21,11 @@ spent in each, with how often it ran:
 - across all of them, the time inside Warp kernels (compiled code), and of that the BVH searches
   (closest faces, winding numbers, rays): what a faster Python or torch layer cannot remove.
 
-Indented rows are part of the unindented row above them. Writes <out>.md and <out>.json with the
-command, the commit and the load average.
+Indented rows are part of the unindented row above them. With `--device cuda` the drape runs on
+the GPU and every timed call synchronises the GPU before and after it (the GPU's work is counted
+in the phase that launched it, plus a few microseconds per call); the Warp rows count CPU kernels
+only, so they are empty there. Writes <out>.md and <out>.json with the command, the commit and
+the load average.
 """
 
 from __future__ import annotations
@@ -65,6 +68,7 @@ class Timers:
         self.seconds: dict[str, float] = collections.defaultdict(float)
         self.calls: dict[str, int] = collections.defaultdict(int)
         self.active = False
+        self.sync = lambda: None  # waits for the device's queued work (the GPU's), before and after a timed call
 
     def wrap(self, owner, attribute: str, label: str) -> None:
         original = getattr(owner, attribute)
@@ -72,10 +76,12 @@ class Timers:
         def timed(*args, **kwargs):
             if not self.active:
                 return original(*args, **kwargs)
+            self.sync()
             start = time.perf_counter()
             try:
                 return original(*args, **kwargs)
             finally:
+                self.sync()
                 self.seconds[label] += time.perf_counter() - start
                 self.calls[label] += 1
 
@@ -111,20 +117,22 @@ class Timers:
         return out
 
 
-def measure(repeats: int) -> dict[str, list[dict]]:
+def measure(repeats: int, device: str = "cpu") -> dict[str, list[dict]]:
     import importlib
 
     import torch
 
     torch.set_num_threads(1)
     timers = Timers()
+    if device != "cpu":
+        timers.sync = torch.cuda.synchronize
     for label, module, owner, attribute, _ in PHASES:
         place = importlib.import_module(module)
         timers.wrap(place if owner is None else getattr(place, owner), attribute, label)
     timers.wrap_warp()
     from physdrape.api import Draper
 
-    draper = Draper()
+    draper = Draper(device=device)
     draper.drape("default")  # fits the skinning transfer, poses the default body
     poses = [draper.poses(f"random:{1000 + k}")[0].pose[0] for k in range(repeats + 1)]
     draper.drape("default", pose=poses[0])  # a first new pose outside the timing
@@ -145,6 +153,7 @@ def measure(repeats: int) -> dict[str, list[dict]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=9, help="timed drapes per row (the two rows alternate)")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--out", default="results/drape_breakdown")
     args = parser.parse_args()
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -152,7 +161,7 @@ def main() -> None:
 
     from physdrape.provenance import provenance
 
-    samples = measure(args.repeats)
+    samples = measure(args.repeats, args.device)
     load = os.getloadavg()
     labels = [("drape (end to end)", "drape", 0)]
     labels += [(label, label, indent) for label, *_, indent in PHASES[:2]]
@@ -182,7 +191,8 @@ def main() -> None:
     labels.insert(solver_end + 1, ("the rest (conjugation, clips, updates)", "solver, the rest", 1))
     command = shlex.join(["python", *sys.argv])
     info = provenance()
-    lines = ["# Where a warm drape's time goes (bundled model, T = 15, one thread)", "", *source_lines(command, info),
+    where = "one thread" if args.device == "cpu" else f"one thread, the drape on {args.device}"
+    lines = [f"# Where a warm drape's time goes (bundled model, T = 15, {where})", "", *source_lines(command, info),
              (f"Default T-shirt; medians over {args.repeats} drapes per row, the rows alternating; load average at "
               f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}. Indented rows are part of the unindented row above them; "
               "calls: per drape."), "",
@@ -191,7 +201,7 @@ def main() -> None:
         name = ("&nbsp;&nbsp;&nbsp;&nbsp;" * indent) + label
         lines.append(f"| {name} | {medians['same_pose'][key]:.1f} | {calls('same_pose', key)} | "
                      f"{medians['new_pose'][key]:.1f} | {calls('new_pose', key)} |")
-    write_report(args.out, lines, {"command": command, "provenance": info, "load_average_end": load,
+    write_report(args.out, lines, {"command": command, "provenance": info, "device": args.device, "load_average_end": load,
                                    "repeats": args.repeats, "medians_ms": medians, "samples": samples})
 
 
