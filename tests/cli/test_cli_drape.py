@@ -208,3 +208,21 @@ def test_train_init_from_overrides_the_configs_and_a_recipe_refuses_it(tmp_path,
     recipe = ["train", "--recipe", str(root / "configs/recipes/shipped.yaml"), "--run-dir", str(tmp_path / "s")]
     assert main([*recipe, "--init-from", "elsewhere"]) == 2
     assert "--init-from" in capsys.readouterr().err
+
+
+def test_train_instances_only_builds_the_cache_and_stops(tmp_path, monkeypatch, capsys):
+    from physdrape.train import data, trainer
+
+    built = []
+    monkeypatch.setattr(data, "DrapeSource", lambda config, model: built.append(config.instances))
+    monkeypatch.setattr(trainer, "Trainer", lambda *args, **kwargs: pytest.fail("--instances-only trains nothing"))
+    root = Path(__file__).resolve().parents[2]
+    assert main(["train", "--config", str(root / "configs/global/gnn_energy.yaml"), "--run-dir", str(tmp_path / "r"),
+                 "--instances-only"]) == 0
+    assert built == ["runs/instances"] and "instance cache ready" in capsys.readouterr().out
+    assert not (tmp_path / "r").exists()
+    uncached = tmp_path / "uncached.yaml"
+    uncached.write_text((root / "configs/global/gnn_energy.yaml").read_text().replace("instances: runs/instances",
+                                                                                       'instances: ""'))
+    assert main(["train", "--config", str(uncached), "--run-dir", str(tmp_path / "r"), "--instances-only"]) == 2
+    assert "data.instances" in capsys.readouterr().err

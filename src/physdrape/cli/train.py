@@ -28,6 +28,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         config = replace(config, optim=replace(config.optim, steps=args.steps))
     if args.init_from is not None:
         config = replace(config, optim=replace(config.optim, init_from=args.init_from))
+    if args.instances_only:
+        if not config.data.instances:
+            raise CLIError(f"--instances-only builds the instance cache that data.instances names, and {args.config} "
+                           "names none: set data.instances to a folder (e.g. runs/instances)")
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        DrapeSource(config.data, model=config.model)  # builds (or extends) the cache, then stops
+        print(f"instance cache ready: {config.data.instances}")
+        return 0
     distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
@@ -53,8 +62,9 @@ def _train_recipe(args: argparse.Namespace) -> int:
     from physdrape.train.data import DrapeSource
     from physdrape.train.recipe import run_recipe
 
-    if args.steps is not None or args.init_from is not None:
-        raise CLIError("--steps and --init-from override one config's optim section; a recipe's stages set their own")
+    if args.steps is not None or args.init_from is not None or args.instances_only:
+        raise CLIError("--steps, --init-from and --instances-only apply to one config (--config); a recipe's stages "
+                       "set their own")
     if int(os.environ.get("WORLD_SIZE", "1")) > 1:
         raise CLIError("a recipe runs in one process; run its stages with --config under torchrun instead")
     if args.threads:
@@ -85,6 +95,8 @@ def add_parser(sub) -> None:
     train.add_argument("--steps", type=int, help="override optim.steps")
     train.add_argument("--init-from", help="override optim.init_from: the checkpoint (or run directory) a new run "
                        "starts from, e.g. src/physdrape/assets/models/cpu_default to fine-tune the bundled model")
+    train.add_argument("--instances-only", action="store_true", help="build (or extend) the config's instance cache "
+                       "(data.instances) and stop, e.g. before starting several runs that share it")
     train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
     add_device_argument(train)
     train.set_defaults(func=cmd_train, interrupted=_interrupted)
