@@ -8,11 +8,13 @@ instance is started from
 
 - ``x_init``: X_init (the solver alone);
 - ``gnn``: X_init + Δx of the checkpoint's network (the full model without its f̂);
-- ``teacher_on_patches_L``: X_init plus the teacher's move (teacher drape − X_init) projected, in
-  the least-squares sense, onto the smooth patches of coarse level L (`topology.aggregates`,
-  `topology.smoothed_prolongation`, the two-level solver's coarse space: level 2 has patches of
-  6–15 vertices, each level up about twice as wide): what a network that got the global settling
-  exactly right at that resolution, and nothing finer, would hand the solver;
+- ``teacher_translation``: X_init moved as a whole by the teacher's mean move (mass-weighted):
+  the part of the global settling that is one translation of the garment;
+- ``teacher_on_patches_L``: X_init plus the teacher's move (teacher drape − X_init) fitted, in
+  the least-squares sense, on the smooth patches of coarse level L (`CoarseSpace.fit`, the
+  two-level solver's coarse space: level 2 has patches of 6–15 vertices, each level up about
+  twice as wide): what a network that got the global settling exactly right at that resolution,
+  and nothing finer, would hand the solver;
 - ``teacher``: the teacher drape itself (the floor: the handler and the solver at the teacher);
 
 and the checkpoint's solver (f̂ = 0) and collision handler run T steps from there (T = 0: the
@@ -27,24 +29,12 @@ import shlex
 import sys
 from dataclasses import replace
 
-import numpy as np
-import scipy.sparse.linalg as spla
 import torch
 from held_out import energies, full_model, validation_batches
 from report import source_lines, write_report
 
-from physdrape.geometry import topology
+from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.provenance import provenance
-
-
-def project_on_patches(move: torch.Tensor, faces: torch.Tensor, levels: int, smoothing: int) -> torch.Tensor:
-    """The least-squares fit P c ≈ move (V, 3) with P the smoothed patch prolongation of one garment."""
-    edges = topology.undirected_edges(faces.cpu().numpy())
-    num_verts = move.shape[0]
-    prolong = topology.smoothed_prolongation(edges, num_verts, topology.aggregates(edges, num_verts, levels), smoothing)
-    normal = (prolong.T @ prolong).tocsc()
-    coarse = spla.spsolve(normal, prolong.T @ move.double().cpu().numpy())
-    return torch.from_numpy(np.asarray(prolong @ coarse)).to(move)
 
 
 def main() -> None:
@@ -59,7 +49,7 @@ def main() -> None:
     torch.set_num_threads(1)
     model = full_model(args.checkpoint)
     batches = validation_batches(args.config)
-    starts = ["x_init", "gnn", *(f"teacher_on_patches_{lv}" for lv in args.levels), "teacher"]
+    starts = ["x_init", "gnn", "teacher_translation", *(f"teacher_on_patches_{lv}" for lv in args.levels), "teacher"]
     sums = {(s, t): [0.0, 0.0] for s in starts for t in args.steps}
     teacher_total = teacher_strain = 0.0
     with torch.no_grad():
@@ -67,10 +57,13 @@ def main() -> None:
             drape, teacher = batch.drape, batch.teacher
             total, strain = energies(teacher, drape, model)
             teacher_total, teacher_strain = teacher_total + total, teacher_strain + strain
-            begin = {"x_init": drape.x_init, "gnn": model(drape, steps=0).x_gnn, "teacher": teacher}
+            move = teacher - drape.x_init
+            mass = drape.cloth.mass[:, None]
+            begin = {"x_init": drape.x_init, "gnn": model(drape, steps=0).x_gnn, "teacher": teacher,
+                     "teacher_translation": drape.x_init + (mass * move).sum(0) / mass.sum()}  # one garment
             for lv in args.levels:
-                begin[f"teacher_on_patches_{lv}"] = drape.x_init + project_on_patches(
-                    teacher - drape.x_init, drape.garments.faces, lv, model.config.coarse_smoothing)
+                begin[f"teacher_on_patches_{lv}"] = drape.x_init + CoarseSpace(
+                    drape.cloth, levels=lv, smoothing=model.config.coarse_smoothing).fit(move)
             for name, x0 in begin.items():
                 for t in args.steps:
                     x = x0 if t == 0 else model.physics_only(replace(drape, x_init=x0), steps=t).x
