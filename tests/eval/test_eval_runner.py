@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from dataclasses import replace
@@ -29,6 +30,7 @@ from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.physics import Cloth, Material
 from physdrape.checkpoint import load_model, save_checkpoint
 from physdrape.eval.report import PUBLISHED_NOTE, render_markdown, write_results
+from physdrape.eval.summary import by_pose
 from physdrape.train.trainer import TrainConfig
 
 
@@ -188,6 +190,23 @@ def test_per_category_means_and_ratios_are_those_of_the_categorys_instances(resu
     label = results["row_definitions"]["physdrape_t15"]["label"]
     (line,) = [row for row in table.splitlines() if row.startswith(f"| {label} |")]
     assert len(line.split(" | ")) == 4 and "–" not in line  # all, tshirt, longsleeve: every ratio finite
+    assert data["poses"] == {} and "by pose" not in md  # one pose per garment: no pose table
+
+
+def test_with_two_poses_the_report_has_a_table_by_pose(results):
+    data = copy.deepcopy(results["sets"]["test"])
+    rows = {key: (data[key] if key in data else data["rows"][key])["per_instance"]
+            for key in [*data["rows"], "x_init", "skinned", "oracle", "oracle_refined", "reference"]}
+    data["poses"] = by_pose([0, 1], rows, data["reference"]["per_instance"])  # as if the two were poses 0 and 1
+    assert [entry["instances"] for entry in data["poses"].values()] == [[0], [1]]
+    for (pose, entry), i in zip(data["poses"].items(), (0, 1)):
+        row = entry["rows"]["physdrape_t15"]
+        assert row["energy_total_ratio"] == pytest.approx(
+            rows["physdrape_t15"][i]["energy_total"] / rows["reference"][i]["energy_total"], rel=1e-12), pose
+    md = render_markdown({**results, "sets": {**results["sets"], "test": data}})
+    table = md[md.index("E_total / reference by pose"):md.index("## Table 2")]
+    assert "| Method | all (2) | pose 0 (1) | pose 1 (1) |" in table
+    assert by_pose([0, 0], rows, None) == {}
 
 
 def sheet_over_box_edge() -> DrapeInput:

@@ -278,6 +278,8 @@ def _evaluate_set(instances: list[Instance], models: dict, rows: dict, config: E
              if recs}
     result["categories"] = agg.by_category([inst.category for inst in instances], {**context, **per_row, **extra},
                                            reference or None)
+    result["poses"] = agg.by_pose([inst.pose_index for inst in instances], {**context, **per_row, **extra},
+                                  reference or None)
     return result
 
 def _peak_rss_gib() -> float:

@@ -54,10 +54,10 @@ def _table(rows: list[tuple[str, dict]], *, timing: bool, oracle: bool) -> list[
     return lines
 
 
-def _category_table(rows: list[tuple[str, str]], data: dict) -> list[str]:
-    """Rows × garment categories: each row's mean E_total over the category's instances over the
-    reference's mean over them (the column "all": over every instance)."""
-    categories = data["categories"]
+def _category_table(rows: list[tuple[str, str]], data: dict, groups: str = "categories") -> list[str]:
+    """Rows × garment categories (or poses, `groups="poses"`): each row's mean E_total over the
+    group's instances over the reference's mean over them (the column "all": over every instance)."""
+    categories = data[groups]
     head = ["Method", f"all ({len(data['instances'])})"] + [f"{c} ({len(v['instances'])})" for c, v in categories.items()]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, key in rows:
@@ -167,6 +167,10 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
             out += ["", ("E_total / reference by garment category (row mean over the category's instances over the "
                          "reference's mean over them; instances in brackets):"), ""]
             out += _category_table(keyed, data)
+            if data.get("poses"):
+                out += ["", ("E_total / reference by pose (each garment's k-th seeded body; row mean over the "
+                             "pose's instances over the reference's mean over them):"), ""]
+                out += _category_table(keyed, data, "poses")
         if data.get("reference"):
             out += ["", ("What the network adds (the full model's ratios minus those of the same solver and handler "
                          "without the network):"), ""]

@@ -58,9 +58,22 @@ def by_category(categories: list[str | None], rows: dict[str, list[dict]], ref: 
     for every row of `rows` ({key: per-instance records, in instance order}), the means of
     CATEGORY_KEYS over them and their ratios to the reference's means over the same instances.
     Instances of no category (MakeHuman garments) are in none; no categories: {}."""
+    return _by_group(categories, CATEGORIES, rows, ref)
+
+
+def by_pose(poses: list[int], rows: dict[str, list[dict]], ref: list[dict] | None) -> dict:
+    """The same per pose index ("pose 0", "pose 1", ...: each garment's k-th seeded body), when the
+    instances hold more than one pose; else {}."""
+    found = sorted(set(poses))
+    return _by_group([f"pose {p}" for p in poses], [f"pose {p}" for p in found], rows, ref) if len(found) > 1 else {}
+
+
+def _by_group(labels: list, groups, rows: dict[str, list[dict]], ref: list[dict] | None) -> dict:
+    """{group: {"instances": its instance indices, "rows": {key: CATEGORY_KEYS means and ratios}}}
+    for each group of `groups` that some instance's label names, in that order."""
     out = {}
-    for category in CATEGORIES:
-        members = [i for i, c in enumerate(categories) if c == category]
+    for group in groups:
+        members = [i for i, label in enumerate(labels) if label == group]
         if not members:
             continue
         ref_means = ({key: float(np.mean([ref[i][key] for i in members])) for key in CATEGORY_KEYS}
@@ -72,5 +85,5 @@ def by_category(categories: list[str | None], rows: dict[str, list[dict]], ref: 
                 ref_mean = ref_means[name] if ref_means else math.nan
                 means[f"{name}_ratio"] = means[name] / ref_mean if ref_means and ref_mean != 0 else math.nan
             table[key] = means
-        out[category] = {"instances": members, "rows": table}
+        out[group] = {"instances": members, "rows": table}
     return out
