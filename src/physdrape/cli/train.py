@@ -28,20 +28,18 @@ def cmd_train(args: argparse.Namespace) -> int:
         config = replace(config, optim=replace(config.optim, steps=args.steps))
     if args.init_from is not None:
         config = replace(config, optim=replace(config.optim, init_from=args.init_from))
+    if args.threads:
+        torch.set_num_threads(args.threads)
     if args.instances_only:
         if not config.data.instances:
             raise CLIError(f"--instances-only builds the instance cache that data.instances names, and {args.config} "
                            "names none: set data.instances to a folder (e.g. runs/instances)")
-        if args.threads:
-            torch.set_num_threads(args.threads)
         DrapeSource(config.data, model=config.model)  # builds (or extends) the cache, then stops
         print(f"instance cache ready: {config.data.instances}")
         return 0
     distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
     if distributed:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
-    if args.threads:
-        torch.set_num_threads(args.threads)
     try:
         trainer = Trainer(config, DrapeSource(config.data, model=config.model), args.run_dir,
                           device=process_device(args.device))

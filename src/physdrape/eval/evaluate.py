@@ -276,10 +276,9 @@ def _evaluate_set(instances: list[Instance], models: dict, rows: dict, config: E
     context = {"x_init": start, **({"skinned": plain} if plain else {})}
     extra = {name: recs for name, recs in (("oracle", oracle), ("oracle_refined", refined), ("reference", reference))
              if recs}
-    result["categories"] = agg.by_category([inst.category for inst in instances], {**context, **per_row, **extra},
-                                           reference or None)
-    result["poses"] = agg.by_pose([inst.pose_index for inst in instances], {**context, **per_row, **extra},
-                                  reference or None)
+    every_row = {**context, **per_row, **extra}
+    result["categories"] = agg.by_category([inst.category for inst in instances], every_row, reference or None)
+    result["poses"] = agg.by_pose([inst.pose_index for inst in instances], every_row, reference or None)
     return result
 
 def _peak_rss_gib() -> float:

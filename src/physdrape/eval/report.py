@@ -54,16 +54,17 @@ def _table(rows: list[tuple[str, dict]], *, timing: bool, oracle: bool) -> list[
     return lines
 
 
-def _category_table(rows: list[tuple[str, str]], data: dict, groups: str = "categories") -> list[str]:
-    """Rows × garment categories (or poses, `groups="poses"`): each row's mean E_total over the
-    group's instances over the reference's mean over them (the column "all": over every instance)."""
-    categories = data[groups]
-    head = ["Method", f"all ({len(data['instances'])})"] + [f"{c} ({len(v['instances'])})" for c, v in categories.items()]
+def _group_table(rows: list[tuple[str, str]], data: dict, groups: str) -> list[str]:
+    """Rows × the groups of data[groups] ("categories": garment categories, "poses": pose indices):
+    each row's mean E_total over the group's instances over the reference's mean over them (the
+    column "all": over every instance)."""
+    table = data[groups]
+    head = ["Method", f"all ({len(data['instances'])})"] + [f"{g} ({len(v['instances'])})" for g, v in table.items()]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, key in rows:
         overall = (data[key] if key in data else data["rows"][key])["summary"]
         cells = [label, _fmt(overall.get("energy_total_ratio"))]
-        cells += [_fmt(v["rows"][key]["energy_total_ratio"]) for v in categories.values()]
+        cells += [_fmt(v["rows"][key]["energy_total_ratio"]) for v in table.values()]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -166,11 +167,11 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
                       if data.get(key)]
             out += ["", ("E_total / reference by garment category (row mean over the category's instances over the "
                          "reference's mean over them; instances in brackets):"), ""]
-            out += _category_table(keyed, data)
+            out += _group_table(keyed, data, "categories")
             if data.get("poses"):
                 out += ["", ("E_total / reference by pose (each garment's k-th seeded body; row mean over the "
                              "pose's instances over the reference's mean over them):"), ""]
-                out += _category_table(keyed, data, "poses")
+                out += _group_table(keyed, data, "poses")
         if data.get("reference"):
             out += ["", ("What the network adds (the full model's ratios minus those of the same solver and handler "
                          "without the network):"), ""]
