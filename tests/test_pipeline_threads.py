@@ -1,9 +1,11 @@
 """`DrapePipeline.build` on more than one torch thread: the X_inits of different bodies are made
-in parallel, and they are the ones a single thread makes, bit for bit."""
+in parallel, and they are the ones a single thread makes, bit for bit; on a GPU pipeline they are
+made on the GPU."""
 
 from __future__ import annotations
 
 import torch
+from device_params import needs_cuda
 
 from physdrape.api.specs import garment_template
 from physdrape.body.pool import BodyPool
@@ -24,3 +26,18 @@ def test_parallel_x_inits_equal_one_threads(anny_body, threads):
     num_verts = template.verts.shape[0]
     assert torch.equal(built[2][:num_verts], built[2][2 * num_verts:3 * num_verts])  # the same body twice
     assert not torch.equal(built[2][:num_verts], built[2][num_verts:2 * num_verts])
+
+
+@needs_cuda
+def test_x_init_on_the_gpu_matches_the_cpus(anny_body):
+    """On a GPU pipeline the garments are skinned and limited on the GPU, against the posed bodies'
+    surfaces there; X_init agrees with the CPU's to well below a millimetre."""
+    template = garment_template("default")
+    state = BodyPool.from_seeds(anny_body, [5, 6], dtype=POSE_DTYPE).state([0, 1])
+    jobs = [Job(template, body, Material()) for body in (0, 1)]
+    on_cpu = DrapePipeline(anny_body).build(jobs, PosedBodies(state))
+    posed = PosedBodies(state)
+    on_gpu = DrapePipeline(anny_body, device="cuda").build(jobs, posed)
+    assert on_gpu.x_init.device.type == "cuda"
+    assert not any(key[-1].type == "cpu" for key in posed._surfaces if isinstance(key[-1], torch.device))
+    torch.testing.assert_close(on_gpu.x_init.cpu(), on_cpu.x_init, rtol=0, atol=1e-4)

@@ -9,9 +9,11 @@ edge-stretch limited with the body held out; paper Eq. 5) unless the job brings 
 warm-started frame of a sequence). What does not change between drapes is computed once and
 cached per template: its skinning transfer onto the body model and its rest-state `Garment`.
 
-Devices: bodies are posed and garments skinned where the body model runs (the CPU, in
-`POSE_DTYPE`); the `DrapeInput` handed to the model (garments, cloth, X_init, body surfaces) is
-built on the pipeline's device, the templates' rest states cached there. A `PosedBodies` holds the
+Devices: bodies are posed where the body model runs (the CPU, in `POSE_DTYPE`); garments are
+skinned and their stretch limited (X_init, still in `POSE_DTYPE`) on the pipeline's device,
+against the posed bodies' surfaces there, the model's own, and the `DrapeInput` handed to the
+model (garments, cloth, X_init, body surfaces) is built there, the templates' rest states and
+transfers cached there. On a GPU a new pose then costs no body surface on the CPU. A `PosedBodies` holds the
 body surfaces (Warp BVHs) of one posed batch, built on first use: a caller that drapes on the
 same bodies again (the API, for a shape and pose it has seen) hands the same `PosedBodies` back
 and builds no surface twice.
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import torch
@@ -103,6 +105,18 @@ class PosedBodies:
     def __init__(self, state: BodyState) -> None:
         self.state = state
         self._surfaces: dict[tuple, BodySurface] = {}
+        self._states: dict[torch.device, BodyState] = {}
+
+    def state_on(self, device: torch.device | str) -> BodyState:
+        """The posed bodies with their tensors on `device` (copied once)."""
+        device = torch.device(device)
+        if self.state.verts.device == device:
+            return self.state
+        if device not in self._states:
+            moved = {f.name: getattr(self.state, f.name).to(device) for f in fields(self.state)
+                     if isinstance(getattr(self.state, f.name), Tensor)}
+            self._states[device] = replace(self.state, **moved)
+        return self._states[device]
 
     def surface(self, dtype: torch.dtype, device: torch.device | str) -> BodySurface:
         """All B bodies as one `BodySurface` in `dtype` on `device` (the model's queries)."""
@@ -113,14 +127,14 @@ class PosedBodies:
                                               self.state.faces)
         return self._surfaces[key]
 
-    def single(self, index: int, dtype: torch.dtype) -> BodySurface:
-        """Body `index` alone as a `BodySurface` on the state's device (what the skinning transfer
-        holds the garment out of while it limits X_init's stretch), in `dtype`: a selection of the
-        batch's surface in `dtype` there (the model's own on that device), its BVH shared."""
-        batch = self.surface(dtype, self.state.verts.device)
+    def single(self, index: int, dtype: torch.dtype, device: torch.device | str) -> BodySurface:
+        """Body `index` alone as a `BodySurface` on `device` (what the skinning transfer holds the
+        garment out of while it limits X_init's stretch), in `dtype`: a selection of the batch's
+        surface in `dtype` there (the model's own on that device), its BVH shared."""
+        batch = self.surface(dtype, device)
         if self.state.batch_size == 1:
             return batch
-        key = ("one", index, dtype)
+        key = ("one", index, dtype, torch.device(device))
         if key not in self._surfaces:
             self._surfaces[key] = batch.select(index)
         return self._surfaces[key]
@@ -172,6 +186,7 @@ class DrapePipeline:
         self.device = torch.device(device)
         self.max_stretch = max_stretch
         self._transfers: dict[str, SkinningTransfer] = {}
+        self._device_transfers: dict[str, SkinningTransfer] = {}
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
         self._closures: dict[str, np.ndarray] = {}
@@ -187,6 +202,14 @@ class DrapePipeline:
             self._transfers[template.key] = transfer
         return self._transfers[template.key]
 
+    def _transfer_here(self, template: Template) -> SkinningTransfer:
+        """The template's transfer on the pipeline's device (moved once)."""
+        if self.device.type == "cpu":
+            return self.transfer(template)
+        if template.key not in self._device_transfers:
+            self._device_transfers[template.key] = self.transfer(template).to(self.device)
+        return self._device_transfers[template.key]
+
     def garment(self, template: Template, rest: np.ndarray | None = None) -> Garment:
         """The template's rest-state quantities in the pipeline's dtype, on its device (computed
         once); with `rest` [m] (V, 3), those of that rest shape (computed each time)."""
@@ -199,13 +222,15 @@ class DrapePipeline:
 
     def x_init(self, template: Template, state: BodyState | PosedBodies, index: int = 0,
                rest: np.ndarray | None = None) -> Tensor:
-        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype; with
-        `rest` [m] (V, 3), that rest shape skinned instead of the template's plus ΔX_shape."""
+        """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype, on the
+        pipeline's device; with `rest` [m] (V, 3), that rest shape skinned instead of the
+        template's plus ΔX_shape."""
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         with torch.no_grad():
-            body = select(posed.state, index)
-            rest_t = None if rest is None else torch.as_tensor(rest, dtype=body.rest_verts.dtype)
-            return self.transfer(template).apply(body, rest_verts=rest_t, surface=posed.single(index, self.dtype))[0]
+            body = select(posed.state_on(self.device), index)
+            rest_t = None if rest is None else torch.as_tensor(rest, dtype=body.rest_verts.dtype, device=self.device)
+            return self._transfer_here(template).apply(body, rest_verts=rest_t,
+                                                       surface=posed.single(index, self.dtype, self.device))[0]
 
     def fitted_rest(self, template: Template, state: BodyState, index: int = 0) -> np.ndarray:
         """The skinning transfer's shape part X_temp + ΔX_shape [m] (V, 3) float64 on body `index`
@@ -221,10 +246,9 @@ class DrapePipeline:
         device = self.device
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         asked = QUERIES_PER_VERTEX * sum(job.template.num_verts for job in jobs)
-        places = {torch.device(device)} | ({posed.state.verts.device} if any(j.x_init is None for j in jobs) else set())
-        for surface in {posed.surface(self.dtype, where) for where in places}:
-            surface.expect(asked)  # the model's surface, and X_init's where it lives elsewhere
-            surface.forget_recent()  # what a drape reuses is its own: a repeated drape costs what the first did
+        surface = posed.surface(self.dtype, device)  # the model's, and X_init's
+        surface.expect(asked)
+        surface.forget_recent()  # what a drape reuses is its own: a repeated drape costs what the first did
         skinned = self._x_inits(jobs, posed)
         x_init = [(skinned[i] if job.x_init is None else job.x_init).to(device=device, dtype=self.dtype)
                   for i, job in enumerate(jobs)]
@@ -266,12 +290,12 @@ class DrapePipeline:
         for i in todo[1:]:
             by_body.setdefault(jobs[i].body, []).append(i)
         workers = min(torch.get_num_threads(), len(by_body))
-        if workers < 2 or posed.state.verts.device.type != "cpu":
+        if workers < 2 or self.device.type != "cpu":
             out.update(run(todo[1:]))
             return out
         for i in todo[1:]:  # first use outside the threads: fitted transfers, selected surfaces
             self.transfer(jobs[i].template)
-            posed.single(jobs[i].body, self.dtype)
+            posed.single(jobs[i].body, self.dtype, self.device)
         for part in parallel_map(run, list(by_body.values()), "x-init", workers):
             out.update(part)
         return out

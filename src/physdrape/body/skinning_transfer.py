@@ -29,7 +29,7 @@ garment between two equidistant limbs.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -238,6 +238,11 @@ class SkinningTransfer:
         return cls(weights=weights, canonical_verts=torch.from_numpy(vb).to(dtype),
                    template_verts=torch.from_numpy(vg).to(dtype),
                    edges=torch.from_numpy(undirected_edges(fg)), max_stretch=max_stretch)
+
+    def to(self, device: torch.device | str) -> SkinningTransfer:
+        """This transfer with its tensors on `device` (`apply` then skins and limits there)."""
+        return replace(self, weights=self.weights.to(device), canonical_verts=self.canonical_verts.to(device),
+                       template_verts=self.template_verts.to(device), edges=self.edges.to(device))
 
     def weight_matrix(self) -> Tensor:
         """The transfer weights as a dense matrix, shape (V, Vb) (for inspection and tests)."""
