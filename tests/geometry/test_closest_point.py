@@ -1,5 +1,6 @@
 """The Warp closest-point kernel against its torch twin (`closest_point_reference`), values and
-gradients, in every region of the triangle, and the feature pseudo-normals it selects."""
+gradients, in every region of the triangle; the surface kernel's feature pseudo-normals, signs and
+signed distances."""
 
 import pytest
 import torch
@@ -8,7 +9,7 @@ from closest_point_reference import closest_point_on_triangle as reference
 from physdrape.geometry.closest_point import (
     closest_point_on_indexed_triangles,
     closest_point_on_triangle,
-    feature_pseudo_normals,
+    closest_surface_points,
 )
 
 
@@ -71,15 +72,52 @@ def test_indexed_triangles_share_vertices_and_keep_the_dtype():
         torch.autograd.grad(q.sum(), points, create_graph=True)
 
 
-def test_pseudo_normals_are_picked_by_the_feature():
-    faces = torch.tensor([[0, 1, 2]])
+def _one_triangle(points, near_tol):
+    """`closest_surface_points` on the triangle (0, 0, 0), (1, 0, 0), (0, 1, 0) with made-up
+    pseudo-normals: the face's +z, its edges' and its vertices' each a different unit vector."""
+    verts = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype=torch.float64)
+    faces = torch.tensor([[0, 1, 2]], dtype=torch.int32)
     face_normals = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=torch.float64)
     edge_normals = torch.tensor([[[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]]], dtype=torch.float64)
     vertex_normals = torch.tensor([[[0.6, 0.8, 0.0], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]]], dtype=torch.float64)
-    bary = torch.tensor([[0.2, 0.3, 0.5], [0.0, 0.4, 0.6], [0.5, 0.0, 0.5], [0.3, 0.7, 0.0], [0.0, 1.0, 0.0],
-                         [0.0, 0.0, 1.0]], dtype=torch.float64)
-    zero = torch.zeros(len(bary), dtype=torch.int64)
-    n = feature_pseudo_normals(bary, zero, zero, faces, face_normals, edge_normals, vertex_normals)
+    zero = torch.zeros(len(points), dtype=torch.int32)
+    out = closest_surface_points(torch.tensor(points, dtype=torch.float64), verts, zero, zero, faces, face_normals,
+                                 edge_normals, vertex_normals, near_tol=near_tol)
+    return out, (face_normals, edge_normals, vertex_normals)
+
+
+def test_pseudo_normals_are_picked_by_the_feature():
+    # over the face, past each edge (opposite corners 0, 1, 2) and past corners 1 and 2
+    points = [[0.2, 0.3, 0.5], [0.8, 0.8, 0.0], [-0.5, 0.5, 0.0], [0.5, -0.5, 0.0], [2.0, -1.0, 0.0], [-1.0, 2.0, 0.0]]
+    out, (face_normals, edge_normals, vertex_normals) = _one_triangle(points, near_tol=10.0)  # all "on" it
+    assert torch.equal((out.bary == 0).sum(-1), torch.tensor([0, 1, 1, 1, 2, 2]))
     expected = torch.stack([face_normals[0, 0], edge_normals[0, 0, 0], edge_normals[0, 0, 1], edge_normals[0, 0, 2],
                             vertex_normals[0, 1], vertex_normals[0, 2]])
-    torch.testing.assert_close(n, expected, rtol=0, atol=0)
+    torch.testing.assert_close(out.normal, expected, rtol=0, atol=0)
+    assert out.near.all()
+    torch.testing.assert_close(out.signed_distance, ((torch.tensor(points, dtype=torch.float64) - out.closest)
+                                                     * expected).sum(-1), rtol=0, atol=1e-15)
+
+
+def test_off_the_surface_the_normal_points_out_and_the_distance_is_signed():
+    out, _ = _one_triangle([[0.2, 0.3, 0.5], [0.2, 0.3, -0.25], [0.2, 0.3, 1e-9]], near_tol=1e-6)
+    torch.testing.assert_close(out.normal, torch.tensor([[0.0, 0.0, 1.0]] * 3, dtype=torch.float64))
+    torch.testing.assert_close(out.signed_distance, torch.tensor([0.5, -0.25, 1e-9], dtype=torch.float64))
+    assert out.inside.tolist() == [False, True, False] and out.near.tolist() == [False, False, True]
+
+
+def test_the_surface_kernels_gradients_pass_gradcheck():
+    """Closest point, normal and signed distance w.r.t. the points and the triangle's corners,
+    away from region borders (finite differences stay in one region)."""
+    faces = torch.tensor([[0, 1, 2]], dtype=torch.int32)
+    normals = (torch.tensor([[[0.0, 0.0, 1.0]]], dtype=torch.float64), torch.zeros(1, 1, 3, 3, dtype=torch.float64),
+               torch.zeros(1, 3, 3, dtype=torch.float64))
+    points = torch.tensor([[0.2, 0.3, 0.5], [0.9, 0.8, 0.1], [1.5, -0.4, -0.3]], dtype=torch.float64, requires_grad=True)
+    verts = torch.tensor([[0.0, 0.1, 0.0], [1.0, 0.0, 0.2], [0.1, 1.0, 0.0]], dtype=torch.float64, requires_grad=True)
+    zero = torch.zeros(3, dtype=torch.int32)
+
+    def outputs(x, v):
+        out = closest_surface_points(x, v, zero, zero, faces, *normals, near_tol=1e-6)
+        return out.closest, out.normal, out.signed_distance
+
+    assert torch.autograd.gradcheck(outputs, (points, verts))

@@ -1,21 +1,23 @@
-"""Exact closest point on triangles, and the pseudo-normal of the feature it lies on (NVIDIA Warp
+"""Exact closest point on triangles, and the normal and signed distance there (NVIDIA Warp
 kernels, batched, differentiable).
 
 The geometry half of the body-surface queries (`geometry.proximity`): the BVH finds the closest
-triangle of each point, `closest_point_on_indexed_triangles` computes the closest point on it in
-float64, differentiable w.r.t. the query points and the triangle corners, and
-`feature_pseudo_normals` picks the angle-weighted pseudo-normal of the face, edge or vertex it
-lies on. `closest_point_on_triangle` is the same computation on triangles given by their corners
-(the garment sizing and the skinning transfer, on candidate triangles of their own).
+triangle of each point, `closest_surface_points` computes in one launch the closest point on it in
+float64, the angle-weighted pseudo-normal of the face, edge or vertex it lies on, the sign of the
+point against it, the outward normal and the signed distance. `closest_point_on_indexed_triangles`
+and `closest_point_on_triangle` compute the closest point alone, on triangles given by rows of a
+vertex table or by their corners (the garment sizing and the skinning transfer, on candidate
+triangles of their own); both kernels share one closest-point function.
 
 One kernel launch per call replaces a chain of a few dozen torch ops over the points (region
-tests, selections, gathers), each costing more in per-op overhead than in arithmetic; the
-kernels run on the CPU (compiled native code) or on CUDA, wherever the tensors live.
+tests, selections, gathers, norms, signs), each costing more in per-op overhead than in
+arithmetic; the kernels run on the CPU (compiled native code) or on CUDA, wherever the tensors
+live.
 
-Differentiation: the closest point is wrapped in a `torch.autograd.Function` whose backward is
-the kernel's adjoint, which Warp generates from the same source: the exact derivative of the
-region's formula (a face's plane projection, an edge's line projection, a vertex), w.r.t. the
-points and the corners. The pseudo-normal is not differentiated. Double backward is not
+Differentiation: each kernel is wrapped in a `torch.autograd.Function` whose backward is the
+kernel's adjoint, which Warp generates from the same source: the exact derivative of the region's
+formula (a face's plane projection, an edge's line projection, a vertex), w.r.t. the points and
+the corners. The pseudo-normal and the sign are not differentiated. Double backward is not
 supported.
 
 Numerics: float64 whatever the inputs' dtype (they are converted in, the results out).
@@ -23,13 +25,14 @@ Numerics: float64 whatever the inputs' dtype (they are converted in, the results
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["closest_point_float64", "closest_point_on_indexed_triangles", "closest_point_on_triangle",
-           "feature_pseudo_normals"]
+__all__ = ["SurfacePoints", "closest_point_on_indexed_triangles", "closest_point_on_triangle", "closest_surface_points"]
 
 
 @defined_once
@@ -96,15 +99,13 @@ def _kernels() -> dict:
         bary[i] = w
         closest[i] = w[0] * a + w[1] * b + w[2] * c
 
-    @wp.kernel(enable_backward=False)
-    def pseudo_normal_kernel(bary: wp.array(dtype=wp.vec3d), body: wp.array(dtype=wp.int32),
-                             face: wp.array(dtype=wp.int32), faces: wp.array2d(dtype=wp.int32),
-                             face_normals: wp.array2d(dtype=wp.vec3d), edge_normals: wp.array3d(dtype=wp.vec3d),
-                             vertex_normals: wp.array2d(dtype=wp.vec3d), out: wp.array(dtype=wp.vec3d)):
-        i = wp.tid()
-        w = bary[i]
-        b = body[i]
-        f = face[i]
+    @wp.func
+    def feature_normal(w: wp.vec3d, b: wp.int32, f: wp.int32, faces: wp.array2d(dtype=wp.int32),
+                       face_normals: wp.array2d(dtype=wp.vec3d), edge_normals: wp.array3d(dtype=wp.vec3d),
+                       vertex_normals: wp.array2d(dtype=wp.vec3d)):
+        """The pseudo-normal of the feature of face f that barycentrics w lie on: no zero → the
+        face's, one zero → the edge's opposite that corner, two zeros → the vertex's of the largest
+        weight."""
         zero = f64(0.0)
         zeros = int(w[0] == zero) + int(w[1] == zero) + int(w[2] == zero)
         n = face_normals[b, f]
@@ -122,9 +123,40 @@ def _kernels() -> dict:
             if w[2] > w[k]:
                 k = 2
             n = vertex_normals[b, faces[f, k]]
-        out[i] = n
+        return n
 
-    return {"wp": wp, "closest": closest_kernel, "pseudo_normal": pseudo_normal_kernel}
+    @wp.kernel
+    def surface_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
+                       body: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), num_verts: wp.int32,
+                       faces: wp.array2d(dtype=wp.int32), face_normals: wp.array2d(dtype=wp.vec3d),
+                       edge_normals: wp.array3d(dtype=wp.vec3d), vertex_normals: wp.array2d(dtype=wp.vec3d),
+                       near_tol: wp.float64, closest: wp.array(dtype=wp.vec3d), bary: wp.array(dtype=wp.vec3d),
+                       normal: wp.array(dtype=wp.vec3d), distance: wp.array(dtype=wp.float64),
+                       flags: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        b = body[i]
+        f = face[i]
+        row = b * num_verts
+        a = verts[row + faces[f, 0]]
+        bb = verts[row + faces[f, 1]]
+        c = verts[row + faces[f, 2]]
+        x = points[i]
+        w = closest_bary(x, a, bb, c)
+        p = w[0] * a + w[1] * bb + w[2] * c
+        pseudo = feature_normal(w, b, f, faces, face_normals, edge_normals, vertex_normals)
+        r = x - p
+        dist = wp.length(r)
+        inside = wp.dot(r, pseudo) < f64(0.0)
+        near = dist <= near_tol
+        sign = wp.where(inside, f64(-1.0), f64(1.0))
+        n = wp.where(near, pseudo, (sign * ratio(f64(1.0), dist)) * r)
+        closest[i] = p
+        bary[i] = w
+        normal[i] = n
+        distance[i] = wp.dot(r, n)
+        flags[i] = wp.where(inside, 1, 0) + wp.where(near, 2, 0)
+
+    return {"wp": wp, "closest": closest_kernel, "surface": surface_kernel}
 
 
 def _vec3(wp, t: Tensor):
@@ -190,16 +222,9 @@ def closest_point_on_indexed_triangles(points: Tensor, verts: Tensor, corners: T
     """
     if points.dtype != verts.dtype:
         raise TypeError(f"points are {points.dtype} but verts are {verts.dtype}; convert one of them explicitly")
-    p, bary = closest_point_float64(points.to(torch.float64).contiguous(), verts.to(torch.float64).contiguous(),
-                                    corners.to(torch.int32).contiguous())
+    p, bary = _ClosestPoint.apply(points.to(torch.float64).contiguous(), verts.to(torch.float64).contiguous(),
+                                  corners.to(torch.int32).contiguous())
     return p.to(points.dtype), bary.to(points.dtype)
-
-
-def closest_point_float64(points: Tensor, verts: Tensor, corners: Tensor) -> tuple[Tensor, Tensor]:
-    """`closest_point_on_indexed_triangles` on inputs already in the kernel's types, results in
-    float64: points (M, 3) and verts (N, 3) float64 contiguous, corners (M, 3) int32 contiguous
-    (for a caller that holds them so, and converts nothing per call)."""
-    return _ClosestPoint.apply(points, verts, corners)
 
 
 def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
@@ -223,33 +248,112 @@ def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tup
     return p.reshape(*lead, 3), bary.reshape(*lead, 3)
 
 
-@torch.no_grad()
-def feature_pseudo_normals(bary: Tensor, body: Tensor, face: Tensor, faces: Tensor, face_normals: Tensor,
-                           edge_normals: Tensor, vertex_normals: Tensor) -> Tensor:
-    """The angle-weighted pseudo-normal of the feature each closest point lies on, read off its
-    barycentrics: no zero → the face's normal, one zero → the normal of the edge opposite that
-    corner, two zeros → the vertex's (`closest_point_on_indexed_triangles` returns exact zeros).
+@dataclass(frozen=True)
+class SurfacePoints:
+    """Closest points on indexed triangles with their normals (`closest_surface_points`); float64,
+    leading shape (M,).
+
+    Attributes:
+        closest: the closest point p [m] (M, 3); bary: its barycentrics (M, 3).
+        normal: (x − p) / |x − p| signed by the pseudo-normal, or the pseudo-normal itself within
+            near_tol of the surface (M, 3).
+        signed_distance: (x − p) · normal [m] (M,).
+        inside: the pseudo-normal's sign, (x − p) · n_pseudo < 0 (M,) bool.
+        near: |x − p| ≤ near_tol (M,) bool.
+    """
+
+    closest: Tensor
+    bary: Tensor
+    normal: Tensor
+    signed_distance: Tensor
+    inside: Tensor
+    near: Tensor
+
+
+class _SurfacePoints(torch.autograd.Function):
+    """closest, bary, normal, signed distance = kernel(points, verts, …) with the kernel's adjoint
+    as the backward (w.r.t. points and verts; the feature's pseudo-normal counts as a constant)."""
+
+    @staticmethod
+    def forward(ctx, points: Tensor, verts: Tensor, body: Tensor, face: Tensor, num_verts: int, faces: Tensor,
+                normals: tuple[Tensor, Tensor, Tensor], near_tol: float):
+        wp = _kernels()["wp"]
+        m = points.shape[0]
+        closest, bary, normal = (torch.empty_like(points) for _ in range(3))
+        distance = torch.empty(m, dtype=torch.float64, device=points.device)
+        flags = torch.empty(m, dtype=torch.int32, device=points.device)
+        if m:
+            with torch_stream(points.device):
+                wp.launch(_kernels()["surface"], dim=m, device=wp.device_from_torch(points.device),
+                          inputs=_surface_inputs(wp, points, verts, body, face, num_verts, faces, normals, near_tol),
+                          outputs=[_vec3(wp, closest), _vec3(wp, bary), _vec3(wp, normal),
+                                   launch_arg(distance, wp.float64), launch_arg(flags, wp.int32)])
+        ctx.save_for_backward(points, verts, body, face, faces, *normals)
+        ctx.num_verts, ctx.near_tol = num_verts, near_tol
+        ctx.mark_non_differentiable(flags)
+        return closest, bary, normal, distance, flags
+
+    @staticmethod
+    def backward(ctx, grad_closest, grad_bary, grad_normal, grad_distance, _grad_flags):
+        if torch.is_grad_enabled():
+            raise RuntimeError("the closest point is differentiable once: its backward cannot be "
+                               "differentiated again (create_graph=True, torch.func.hessian)")
+        points, verts, body, face, faces, *normals = ctx.saved_tensors
+        wp = _kernels()["wp"]
+        grad_points, grad_verts = torch.zeros_like(points), torch.zeros_like(verts)
+        grads = [torch.zeros_like(points) if g is None else g.to(torch.float64).contiguous()
+                 for g in (grad_closest, grad_bary, grad_normal)]
+        grad_distance = (torch.zeros(points.shape[0], dtype=torch.float64, device=points.device)
+                         if grad_distance is None else grad_distance.to(torch.float64).contiguous())
+        flags = torch.empty(points.shape[0], dtype=torch.int32, device=points.device)
+        scratch = tuple(torch.zeros_like(n) for n in normals)  # the pseudo-normals' adjoints, discarded
+        if points.shape[0]:
+            with torch_stream(points.device):
+                inputs = _surface_inputs(wp, points, verts, body, face, ctx.num_verts, faces, normals, ctx.near_tol)
+                adj_inputs = _surface_inputs(wp, grad_points, grad_verts, body, face, ctx.num_verts, faces, scratch,
+                                             ctx.near_tol)
+                wp.launch(_kernels()["surface"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                          inputs=inputs, outputs=[*(_vec3(wp, torch.empty_like(points)) for _ in range(3)),
+                                                  launch_arg(torch.empty_like(grad_distance), wp.float64),
+                                                  launch_arg(flags, wp.int32)],
+                          adj_inputs=adj_inputs,
+                          adj_outputs=[*(_vec3(wp, g) for g in grads), launch_arg(grad_distance, wp.float64),
+                                       launch_arg(flags, wp.int32)], adjoint=True)
+        return grad_points, grad_verts, None, None, None, None, None, None
+
+
+def _surface_inputs(wp, points, verts, body, face, num_verts, faces, normals, near_tol) -> list:
+    face_normals, edge_normals, vertex_normals = normals
+    return [_vec3(wp, points), _vec3(wp, verts), launch_arg(body, wp.int32), launch_arg(face, wp.int32),
+            int(num_verts), _int2d(wp, faces), _vec3(wp, face_normals), _vec3(wp, edge_normals),
+            _vec3(wp, vertex_normals), float(near_tol)]
+
+
+def closest_surface_points(points: Tensor, verts: Tensor, body: Tensor, face: Tensor, faces: Tensor,
+                           face_normals: Tensor, edge_normals: Tensor, vertex_normals: Tensor, *,
+                           near_tol: float) -> SurfacePoints:
+    """The closest point of each point on its triangle of its body, and the normal and signed
+    distance there, in one kernel launch: what a body-surface query computes once its BVH has
+    found the triangles (`geometry.proximity`).
 
     Args:
-        bary: barycentric coordinates of the closest points, shape (M, 3).
-        body, face: each point's body and face (a row of `faces`), shapes (M,) int.
-        faces: the bodies' triangles, shape (F, 3) int.
+        points: query points [m], (M, 3) float64 contiguous.
+        verts: the bodies' vertices flattened, (B · N, 3) float64 contiguous (body b's vertex j at
+            row b · N + j).
+        body, face: each point's body and triangle (a row of `faces`), (M,) int32 contiguous.
+        faces: the bodies' triangles, (F, 3) int32 contiguous.
         face_normals: (B, F, 3); edge_normals: (B, F, 3, 3), face f's edge opposite its corner k
-            at [:, f, k]; vertex_normals: (B, N, 3); unit vectors.
+            at [:, f, k]; vertex_normals: (B, N, 3); unit angle-weighted pseudo-normals, float64
+            contiguous.
+        near_tol: distance [m] within which a point counts as on the surface and its normal is
+            the pseudo-normal of the feature its closest point lies on (the face's, an edge's or a
+            vertex's, read off the barycentrics' exact zeros).
 
     Returns:
-        (M, 3) in face_normals' dtype; not differentiated.
+        `SurfacePoints`; closest, bary, normal and signed_distance differentiable w.r.t. points
+        and verts (once).
     """
-    wp = _kernels()["wp"]
-    out = torch.empty(bary.shape[0], 3, dtype=torch.float64, device=bary.device)
-
-    if bary.shape[0]:
-        with torch_stream(bary.device):
-            wp.launch(_kernels()["pseudo_normal"], dim=bary.shape[0], device=wp.device_from_torch(bary.device),
-                      inputs=[_vec3(wp, bary.to(torch.float64).contiguous()),
-                              wp.from_torch(body.to(torch.int32).contiguous(), dtype=wp.int32),
-                              wp.from_torch(face.to(torch.int32).contiguous(), dtype=wp.int32),
-                              _int2d(wp, faces.to(torch.int32).contiguous()),
-                              *(_vec3(wp, t.to(torch.float64).contiguous()) for t in (face_normals, edge_normals, vertex_normals))],
-                      outputs=[_vec3(wp, out)])
-    return out.to(face_normals.dtype)
+    closest, bary, normal, distance, flags = _SurfacePoints.apply(
+        points, verts, body, face, vertex_normals.shape[1], faces, (face_normals, edge_normals, vertex_normals),
+        near_tol)
+    return SurfacePoints(closest, bary, normal, distance, (flags & 1).bool(), (flags & 2).bool())

@@ -58,7 +58,7 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.body_bvh import BodyBVH
-from physdrape.geometry.closest_point import closest_point_float64, feature_pseudo_normals
+from physdrape.geometry.closest_point import closest_surface_points
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
@@ -371,18 +371,6 @@ class BodySurface:
             self._verts64 = self.verts.detach().reshape(-1, 3).to(torch.float64).contiguous()
         return self._verts64
 
-    def _corner_rows(self, body32: Tensor, face: Tensor) -> Tensor:
-        """Rows of the corners of each point's face in the bodies' vertex table flattened to
-        (B·Vb, 3), shape (M, 3) int32 (body32: each point's body, int32)."""
-        return (body32[:, None] * self.num_verts + self._faces32[face]).contiguous()
-
-    @torch.no_grad()
-    def _pseudo_normals(self, body: Tensor, face: Tensor, bary: Tensor) -> Tensor:
-        """Angle-weighted pseudo-normal of the closest feature (face, edge or vertex), shape (M, 3),
-        read off the barycentrics (`geometry.closest_point.feature_pseudo_normals`). Not
-        differentiated (used for the sign, and as the direction of on-surface points)."""
-        return feature_pseudo_normals(bary, body, face, self._faces32, *self._feature_normals()).to(bary.dtype)
-
     def query(self, points: Tensor, *, body_index: Tensor | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
 
@@ -402,14 +390,10 @@ class BodySurface:
             face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
                                            threads=self.search_threads, reuse=True)[0]
 
-        p, bary = closest_point_float64(x.to(torch.float64).contiguous(), self._flat_verts64(),
-                                        self._corner_rows(body32, face))
-        p, bary = p.to(x.dtype), bary.to(x.dtype)
-        r = x - p
-        dist = r.norm(dim=-1)
-        near = dist <= self.near_tol
-        n_pseudo = self._pseudo_normals(body32, face, bary.detach())
-        inside = (r.detach() * n_pseudo).sum(-1) < 0  # the pseudo-normal sign
+        on = closest_surface_points(x.to(torch.float64).contiguous(), self._flat_verts64(), body32,
+                                    face.to(torch.int32).contiguous(), self._faces32, *self._feature_normals(),
+                                    near_tol=self.near_tol)
+        inside, n, d = on.inside, on.normal, on.signed_distance  # the pseudo-normal's sign
         if self.sign_method is SignMethod.WINDING_NUMBER:
             with torch.no_grad():
                 # Finding the doubtful faces costs a winding number per body vertex: until this
@@ -422,12 +406,14 @@ class BodySurface:
                     doubt = torch.nonzero(self.doubtful_faces()[body, face])[:, 0]
                 if doubt.numel():
                     _, wn_inside = self._search(x32[doubt], body32[doubt], winding=True)
+                    flip = torch.ones_like(d)  # off the surface the normal points away from the inside
+                    flip[doubt] = 1.0 - 2.0 * ((wn_inside != inside[doubt]) & ~on.near[doubt]).to(flip.dtype)
+                    inside = inside.clone()
                     inside[doubt] = wn_inside
-        sign = 1.0 - 2.0 * inside.to(x.dtype)
-        safe = torch.where(near, torch.ones_like(dist), dist)
-        n = sign[:, None] * r / safe[:, None]
-        n = torch.where(near[:, None], n_pseudo, n)
-        d = (r * n).sum(-1)
+            if doubt.numel():
+                n, d = n * flip[:, None], d * flip
+        p, bary = on.closest.to(x.dtype), on.bary.to(x.dtype)
+        n, d = n.to(x.dtype), d.to(x.dtype)
         return SurfaceQuery(
             closest=p.reshape(*lead, 3),
             normal=n.reshape(*lead, 3),
