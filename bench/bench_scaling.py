@@ -169,6 +169,19 @@ def _rss_gib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
+def _gpu_gib(device) -> float | None:
+    """Peak GPU memory allocated by torch in this process [GiB] on a CUDA device, else None."""
+    import torch
+
+    return torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda" else None
+
+
+def _peak(r: dict) -> str:
+    """A row's peak memory cell: RSS [GiB], and the GPU's beside it on a GPU."""
+    gpu = r.get("peak_gpu_gib")
+    return f"{r['peak_rss_gib']:.2f}" + ("" if gpu is None else f" (GPU {gpu:.2f})")
+
+
 def worker(spec: dict) -> dict:
     """Drape one configuration: `spec` = {garment, batch, threads, steps, repeats, poses}."""
     import torch
@@ -177,7 +190,7 @@ def worker(spec: dict) -> dict:
     from physdrape.api import Draper
 
     t0 = time.perf_counter()
-    draper = Draper(steps=spec["steps"])
+    draper = Draper(steps=spec["steps"], device=spec.get("device", "cpu"))
     template = draper.garment(spec["garment"])
     draper.body("anny")
     timer = PhaseTimer(draper.model)
@@ -206,7 +219,8 @@ def worker(spec: dict) -> dict:
     medians = {key: statistics.median(r[key] for r in timed) for key in timed[0]}
     return {**spec, "num_verts": template.num_verts, "num_faces": len(template.faces),
             "torch_threads": torch.get_num_threads(), "setup_s": setup_s, "warmup_wall_s": records[0]["wall_s"],
-            "median": medians, "calls": timed, "peak_rss_gib": _rss_gib(), "setup_peak_rss_gib": rss_setup}
+            "median": medians, "calls": timed, "peak_rss_gib": _rss_gib(), "setup_peak_rss_gib": rss_setup,
+            "peak_gpu_gib": _gpu_gib(draper.device)}
 
 
 def batch_worker(spec: dict) -> list[dict]:
@@ -220,7 +234,7 @@ def batch_worker(spec: dict) -> list[dict]:
 
     counts, n, repeats = spec["threads"], spec["batch"], spec["repeats"]
     t0 = time.perf_counter()
-    draper = Draper(steps=spec["steps"])
+    draper = Draper(steps=spec["steps"], device=spec.get("device", "cpu"))
     template = draper.garment(spec["garment"])
     draper.body("anny")
     timer = PhaseTimer(draper.model)
@@ -248,7 +262,7 @@ def batch_worker(spec: dict) -> list[dict]:
         medians = {key: statistics.median(r[key] for r in timed) for key in timed[0]}
         rows.append({**spec, "threads": threads, "torch_threads": threads, "num_verts": template.num_verts,
                      "num_faces": len(template.faces), "setup_s": setup_s, "median": medians, "calls": timed,
-                     "peak_rss_gib": _rss_gib()})
+                     "peak_rss_gib": _rss_gib(), "peak_gpu_gib": _gpu_gib(draper.device)})
     return rows
 
 
@@ -300,7 +314,7 @@ def size_table(rows: list[dict]) -> list[str]:
         us = 1e6 * med["wall_s"] / r["num_verts"]
         cells = " | ".join(f"{1e3 * med[p]:.1f}" if p in med else "–" for p in phases)
         lines.append(f"| {r['target']} | {r['num_verts']} | {r['num_faces']} | {1e3 * med['wall_s']:.1f} | {us:.1f} "
-                     f"| {us / base_us:.2f} | {cells} | {r['repeats']} | {r['peak_rss_gib']:.2f} |")
+                     f"| {us / base_us:.2f} | {cells} | {r['repeats']} | {_peak(r)} |")
     lines += ["", "The garments: " + "; ".join(f"{r['target']}: {r['made_by']}" for r in rows) + "."]
     return lines
 
@@ -318,7 +332,7 @@ def batch_table(rows: list[dict]) -> list[str]:
         ratio = f"{rate[(n, r['torch_threads'])] / one:.2f}" if one and r["torch_threads"] != 1 else "–"
         per = " | ".join(f"{1e3 * med[p] / n:.1f}" for p in ("body_s", "init_s", "model_s", "metrics_s"))
         lines.append(f"| {n} | {r['torch_threads']} | {med['wall_s']:.3g} | {n / med['wall_s']:.2f} "
-                     f"| {1e3 * med['wall_s'] / n:.1f} | {ratio} | {per} | {r['peak_rss_gib']:.2f} |")
+                     f"| {1e3 * med['wall_s'] / n:.1f} | {ratio} | {per} | {_peak(r)} |")
     return lines
 
 
@@ -331,7 +345,10 @@ def write_markdown(path: Path, header: dict, args, sizes: list[dict], batches: l
              f"{header['cpu_count']} CPUs; load average {load} (1/5/15 min) at the start, {load_end} at the end. "
              f"Each size in its own process, each batch size in its own process with its thread counts "
              f"alternating call by call (side by side); `Draper.drape` at T = {args.steps}, medians of timed "
-             f"calls after a warm-up call."), "",
+             f"calls after a warm-up call; device {args.device}"
+             + ("" if args.device == "cpu" else " (the phases are host-side times: the GPU runs asynchronously "
+                "and synchronises where the drape reads a result back; the wall time includes all of it)")
+             + "."), "",
              f"## Cost per garment against size ({args.size_threads} torch thread(s), batch 1, the same posed body)",
              "", ("The bundled T-shirt remeshed to each target; ms / garment is the wall time of `Draper.drape`; "
              "the phases are its `DrapeResult.timings` (body, X_init, metrics) and the model's modules "
@@ -356,6 +373,7 @@ def main(argv=None) -> int:
     parser.add_argument("--batch-poses", choices=("fresh", "same"), default="fresh",
                         help="batch runs: new poses every call, or one set of poses repeated")
     parser.add_argument("--steps", type=int, default=15, help="solver steps T")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="where the drapes run")
     parser.add_argument("--repeats", type=int, default=5, help="timed calls per configuration (median)")
     parser.add_argument("--large-from", type=int, default=32000, help="sizes of at least this many vertices ...")
     parser.add_argument("--large-repeats", type=int, default=2, help="... are timed this many times")
@@ -382,14 +400,14 @@ def main(argv=None) -> int:
         garment, how = remeshed_garment(target, Path(args.cache_dir).expanduser())
         repeats = args.large_repeats if target >= args.large_from else args.repeats
         spec = {"kind": "size", "target": target, "garment": str(garment), "made_by": how, "batch": 1,
-                "threads": args.size_threads,
+                "threads": args.size_threads, "device": args.device,
                 "steps": args.steps, "repeats": repeats, "poses": "default", "pose_seed": args.pose_seed}
         log(f"size {target}: {garment.name}, {repeats} repeat(s)")
         sizes.append(run_worker(spec, args.timeout))
         log(f"  {json.dumps({k: sizes[-1].get(k) for k in ('num_verts', 'median', 'peak_rss_gib', 'error')})}")
     batches = []
     for n in args.batches:
-        spec = {"kind": "batch", "garment": str(DEFAULT_GARMENT), "batch": n, "threads": args.threads,
+        spec = {"kind": "batch", "garment": str(DEFAULT_GARMENT), "batch": n, "threads": args.threads, "device": args.device,
                 "steps": args.steps, "repeats": args.repeats, "poses": args.batch_poses, "pose_seed": args.pose_seed}
         log(f"batch {n}, {args.threads} thread(s) alternating")
         rows = run_worker(spec, args.timeout)
