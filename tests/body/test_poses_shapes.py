@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from device_params import DEVICES
 
 from physdrape.body.anny_body import PHENOTYPE_NAMES
 from physdrape.body.poses import PRESETS, _set, arm_torso_penetration, preset_pose, sample_poses
@@ -31,12 +32,15 @@ def test_presets_are_penetration_free(anny_body):
 
 
 @pytest.mark.anny
-def test_arm_through_torso_is_detected(anny_body):
+@pytest.mark.parametrize("device", DEVICES)
+def test_arm_through_torso_is_detected(anny_body, device):
     s = anny_body.default_shape(1, dtype=torch.float64)
     pose = anny_body.rest_pose(2, dtype=torch.float64)
     _set(pose[:1], anny_body, "upperarm01.L", ez=-45)  # both arms swung into the torso
-    counts = arm_torso_penetration(anny_body(s, pose), anny_body)
-    assert counts[0] > 10 and counts[1] == 0
+    counts = arm_torso_penetration(anny_body(s, pose), anny_body, device=device)
+    assert counts.device.type == "cpu" and counts[0] > 10 and counts[1] == 0
+    if device != "cpu":  # the same count where the search runs
+        assert torch.equal(counts, arm_torso_penetration(anny_body(s, pose), anny_body))
     with pytest.raises(ValueError, match="vertices"):
         from physdrape.body.model import BodyState
 

@@ -377,7 +377,7 @@ class Draper:
 
     def _refuse_penetrating_poses(self, state: BodyState, body, labels: list[str]) -> None:
         """A static drape cannot resolve cloth pinched between arm and torso: refuse such poses."""
-        counts = arm_torso_penetration(state, body).tolist()
+        counts = arm_torso_penetration(state, body, device=self.device).tolist()
         bad = [f"{label} ({count} arm vertices inside the body)" for label, count in zip(labels, counts)
                if count > self.arm_contact_tolerance]
         if bad:

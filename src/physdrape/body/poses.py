@@ -151,7 +151,8 @@ def _arm_sets(body) -> tuple[Tensor, Tensor]:
     return query, torso_faces
 
 
-def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4) -> Tensor:
+def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4,
+                          device: torch.device | str | None = None) -> Tensor:
     """Number of distal-arm vertices (upper arm's distal half, forearm, hand) inside the rest of
     the body (torso, head, legs) for each posed body.
 
@@ -163,8 +164,10 @@ def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4) 
     Args:
         body_state: posed bodies of `body` (B, Vb, 3).
         body: the `AnnyBody` that produced them (default: the shared "anny" rig body).
+        device: where the torso's BVH is built and searched (default: where the bodies are; a
+            drape on a GPU checks its poses there).
     Returns:
-        counts, shape (B,) int64; 0 = no arm vertex inside the body.
+        counts, shape (B,) int64 on the CPU; 0 = no arm vertex inside the body.
     """
     if body is None:
         from physdrape.body.anny_body import get_anny_body
@@ -179,12 +182,12 @@ def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4) 
 
     query, torso = _arm_sets(body)
     with torch.no_grad():
-        verts = body_state.verts.float()
+        verts = body_state.verts.to(device=device, dtype=torch.float32)
         # Accuracy 2 (Warp's default): on this open surface 1.0 misses points just above
         # w = 0.5 that the exact (brute-force) winding number counts; 2.0 agrees with it.
-        surface = BodySurface(verts, body.faces[torso], winding_accuracy=2.0)
-        inside = surface.inside(verts[:, query[::stride]])
-    return inside.sum(dim=1)
+        surface = BodySurface(verts, body.faces[torso].to(verts.device), winding_accuracy=2.0)
+        inside = surface.inside(verts[:, query[::stride].to(verts.device)])
+    return inside.sum(dim=1).cpu()
 
 
 # ----------------------------------------------------------------------------------------------
