@@ -127,6 +127,27 @@ def test_the_band_factorisation_equals_the_dense_one_and_the_patches_make_a_narr
         coarse.factor(x, extra)
     expected = dense.solve(r)
     torch.testing.assert_close(band.solve(r), expected, rtol=1e-9, atol=1e-12 * float(expected.abs().max()))
+    # a batch that repeats a garment: dense storage factorises and solves its copies together
+    sheet, tube = batch.garments
+    repeated = GarmentBatch.pack([sheet, tube, sheet])
+    cloth3 = Cloth.build(repeated)
+    x3 = torch.cat([x[:sheet.num_verts], x[sheet.num_verts:], 1.02 * x[:sheet.num_verts]])
+    counts = [tuple(torch.bincount(owner, minlength=3).tolist()) for owner in (cloth3.vert_garment, cloth3.face_garment)]
+    together = CoarseSpace(cloth3)
+    together._s = _BatchStructure.build(cloth3.faces.numpy(), *counts, np.zeros((0, 2), np.int64), 2, 2,
+                                        cloth3.device, banded=False)
+    assert [tuple(g.coarse_dofs.shape)[0] for g in together._s.groups] == [2, 1]
+    apart = CoarseSpace(cloth3)
+    contact = _contact_blocks(cloth3.num_verts)
+    for coarse in (together, apart):
+        coarse.factor(x3, contact)
+    r3 = torch.randn(cloth3.num_verts, 3, generator=torch.Generator().manual_seed(5), dtype=torch.float64,
+                     requires_grad=True)
+    z3 = together.solve(r3)
+    torch.testing.assert_close(z3, apart.solve(r3), rtol=1e-9, atol=1e-12 * float(z3.abs().max()))
+    weights = torch.randn_like(z3)
+    [grad] = torch.autograd.grad((z3 * weights).sum(), r3)  # the correction is symmetric: C w
+    torch.testing.assert_close(grad, together.solve(weights), rtol=1e-9, atol=1e-12 * float(grad.abs().max()))
     # a sheet whose vertices are numbered at random, as a garment file may number them
     verts, faces = grid_sheet(40, 30, width=0.8, height=0.6)
     order = np.random.default_rng(0).permutation(len(verts))
@@ -228,6 +249,11 @@ def test_an_indefinite_coarse_matrix_is_regularised_until_it_factorises():
     assert (rebuilt - block).abs().max() < 0.1  # the smallest regularisation that works (1e-4 x mean diag)
     with pytest.raises(ValueError, match="NaN"):
         _regularized_cholesky(torch.full((3, 3), float("nan"), dtype=torch.float64))
+    # a batch: each matrix keeps the factor of the smallest regularisation that works for it
+    definite = torch.diag(torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    both = _regularized_cholesky(torch.stack([definite, block]))
+    torch.testing.assert_close(both[1], chol)
+    assert (both[0] @ both[0].T - definite).abs().max() < 1e-5  # the first try's 1e-6 x mean diag
 
 
 def test_a_large_garment_is_coarsened_further_to_keep_the_coarse_factor_small():

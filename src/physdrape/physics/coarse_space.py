@@ -32,7 +32,8 @@ which is then factorised by Cholesky. A patch couples only to the patches near i
 patches are numbered (reverse Cuthill–McKee) so that those couplings lie in a band about the
 diagonal: on the CPU the matrix is assembled and factorised in band storage (LAPACK's pbtrf and
 pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense (cuSOLVER), where a
-few hundred unknowns cost little either way. The correction is differentiable in r (P and the
+few hundred unknowns cost little either way and the garments of one topology (a batch of one
+garment on many bodies) are factorised and solved together, in one batched call each. The correction is differentiable in r (P and the
 factor are constants).
 
 Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
@@ -87,35 +88,44 @@ def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smooth
 
 
 def _regularized(matrix: Tensor, diagonal: Tensor, factorise):
-    """factorise() of a symmetric matrix after adding r·mean(diag) to its diagonal, r =
+    """factorise() of symmetric matrices after adding r·mean(diag) to each one's diagonal, r =
     REGULARIZATION raised ×100 until it factorises (a float32 K rounds its near-null rigid modes to
-    slightly negative); factorise returns None where it does not. A matrix without stiffness (a
-    garment of one patch, free of the body, moves rigidly at no cost) is regularised with
-    mean(diag) = 1: its correction is then a long rigid move that the solver's step clip and line
-    search shorten like any other. `matrix` holds the entries (dense or band storage, with
-    `diagonal` a view of its diagonal); it is a scratch copy: its diagonal is overwritten."""
+    slightly negative), each matrix keeping the factor of the smallest r that worked; factorise
+    returns the factors and whether each worked (a bool per matrix, or one for a single matrix). A
+    matrix without stiffness (a garment of one patch, free of the body, moves rigidly at no cost)
+    is regularised with mean(diag) = 1: its correction is then a long rigid move that the solver's
+    step clip and line search shorten like any other. `matrix` holds the entries (dense or band
+    storage, with `diagonal` (..., n) a view of the diagonals); it is a scratch copy: its
+    diagonals are overwritten. Dense matrices may come as a batch (count, n, n)."""
     if not bool(torch.isfinite(matrix.sum())):  # a sum is finite only if every entry is
         raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
     original = diagonal.clone()
-    scale = original.mean()
-    if not bool(scale > 0):  # no stiffness at all (a lone patch moving freely): any scale regularises it
-        scale = torch.ones((), dtype=matrix.dtype, device=matrix.device)
+    scale = original.mean(-1, keepdim=True)
+    # no stiffness at all (a lone patch moving freely): any scale regularises it
+    scale = torch.where(scale > 0, scale, torch.ones_like(scale))
+    best = done = None
     for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
         diagonal.copy_(original + REGULARIZATION * 100.0 ** attempt * scale)
-        factor = factorise()
-        if factor is not None:
-            return factor
+        factor, ok = factorise()
+        ok = torch.as_tensor(ok, device=matrix.device)
+        if best is None or not torch.is_tensor(factor):  # the first try, or a single band matrix
+            best, done = factor, ok
+        else:  # the matrices that factorised before keep their factor
+            best, done = torch.where(done[..., None, None], best, factor), done | ok
+        if bool(done.all()):
+            return best
     raise ValueError("CoarseSpace.factor: the coarse stiffness is not positive semi-definite even with a "
                      "regularisation of its mean diagonal (K must be a PSD majorant)")
 
 
-def _regularized_cholesky(block: Tensor) -> Tensor:
-    """Dense Cholesky factor L of a regularised (`_regularized`) block (n, n), on any device."""
+def _regularized_cholesky(blocks: Tensor) -> Tensor:
+    """Dense Cholesky factors L (count, n, n) of regularised (`_regularized`) blocks (count, n, n),
+    on any device, in one batched factorisation."""
     def factorise():
-        chol, info = torch.linalg.cholesky_ex(block)
-        return chol if int(info) == 0 else None
+        chol, info = torch.linalg.cholesky_ex(blocks)
+        return chol, info == 0
 
-    return _regularized(block, block.diagonal(), factorise)
+    return _regularized(blocks, blocks.diagonal(dim1=-2, dim2=-1), factorise)
 
 
 def _regularized_band_cholesky(band: Tensor) -> np.ndarray:
@@ -126,7 +136,7 @@ def _regularized_band_cholesky(band: Tensor) -> np.ndarray:
 
     def factorise():
         chol, info = lapack.dpbtrf(lower, lower=1)
-        return chol if info == 0 else None
+        return chol, info == 0
 
     return _regularized(band, band[:, 0], factorise)
 
@@ -279,12 +289,16 @@ def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
 @dataclass(frozen=True)
 class _Group:
     """The garments of a batch that share one topology, formed together: G (sparse CSR), the
-    batch's pair rows of each garment (garments, pairs), and the buffer index of each entry of
-    each garment's coarse blocks (garments, coarse blocks · 9)."""
+    batch's pair rows of each garment (garments, pairs), the buffer index of each entry of
+    each garment's coarse blocks (garments, coarse blocks · 9), each garment's coarse dofs
+    (garments, n), and in dense storage the buffer index of each garment's matrix (garments, n²),
+    factorised and solved together."""
 
     operator: Tensor
     pair_rows: Tensor
     destination: Tensor
+    coarse_dofs: Tensor
+    matrix_entries: Tensor | None
 
 
 @dataclass(frozen=True)
@@ -357,8 +371,12 @@ class _BatchStructure:
             destination = np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + local
             if banded:
                 destination[:, local < 0] = offset
+            n = 3 * garment.prolong.shape[1]
+            dofs = np.array([coarse_ranges[g][0] for g in indices], dtype=np.int64)[:, None] + np.arange(n)
+            entries = None if banded else torch.from_numpy(
+                np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + np.arange(n * n)).to(device)
             groups.append(_Group(_sparse_csr(garment.operator, device), torch.from_numpy(rows).to(device),
-                                 torch.from_numpy(destination).to(device)))
+                                 torch.from_numpy(destination).to(device), torch.from_numpy(dofs).to(device), entries))
         prolong = sp.block_diag([g.prolong for g in garments], format="csr")  # (V, patches)
         return _BatchStructure(
             num_patches=prolong.shape[1],
@@ -415,7 +433,7 @@ class CoarseSpace:
             _STRUCTURES.move_to_end(key)
             self._s = _STRUCTURES[key]
         self.num_patches = self._s.num_patches
-        self._factors: list[Tensor] | None = None
+        self._factors: list | None = None  # band: one per garment (NumPy); dense: (count, n, n) per group
         self._gram: list[Tensor] | None = None
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
@@ -444,9 +462,9 @@ class CoarseSpace:
                 self._factors = [
                     _regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
                     for start, (c0, c1), w in zip(s.matrix_offsets, s.coarse_ranges, s.band_widths)]
-        else:
-            self._factors = [_regularized_cholesky(buffer[start:start + (c1 - c0) ** 2].view(c1 - c0, c1 - c0))
-                             for start, (c0, c1) in zip(s.matrix_offsets, s.coarse_ranges)]
+        else:  # the garments of one topology together: one batched factorisation per group
+            self._factors = [_regularized_cholesky(buffer[group.matrix_entries].view(-1, n, n))
+                             for group in s.groups for n in [group.coarse_dofs.shape[1]]]
 
     def fit(self, field: Tensor) -> Tensor:
         """The coarse space's least-squares fit of a per-vertex field (V, 3): P c with c minimising
@@ -473,8 +491,9 @@ class CoarseSpace:
         if s.banded:
             coarse_z = _BandSolve.apply(coarse_r, self._factors, s.coarse_ranges)
             return (s.prolong @ coarse_z.reshape(self.num_patches, 3)).to(r.dtype)
-        parts = []
-        for (c0, c1), chol in zip(s.coarse_ranges, self._factors):  # (L Lᵀ)⁻¹ b: two triangular solves
-            half = torch.linalg.solve_triangular(chol, coarse_r[c0:c1], upper=False)
-            parts.append(torch.linalg.solve_triangular(chol.mT, half, upper=True))
-        return (s.prolong @ torch.cat(parts).reshape(self.num_patches, 3)).to(r.dtype)
+        coarse_z = torch.zeros_like(coarse_r)
+        for group, chol in zip(s.groups, self._factors):  # (L Lᵀ)⁻¹ b, the group's garments together
+            dofs = group.coarse_dofs.reshape(-1)
+            solved = torch.cholesky_solve(coarse_r[dofs].view(*group.coarse_dofs.shape, 1), chol)
+            coarse_z = coarse_z.index_copy(0, dofs, solved.reshape(-1, 1))
+        return (s.prolong @ coarse_z.reshape(self.num_patches, 3)).to(r.dtype)
