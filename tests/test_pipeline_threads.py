@@ -1,6 +1,7 @@
-"""`DrapePipeline.build` on more than one torch thread: the X_inits of different bodies are made
-in parallel, and they are the ones a single thread makes, bit for bit; on a GPU pipeline they are
-made on the GPU."""
+"""`DrapePipeline.build`'s X_inits: on more than one torch thread those of different bodies are
+made in parallel, on one thread those of a template on every body of the batch as one batch of
+meshes, and both are the ones each job gets alone, bit for bit; on a GPU pipeline they are made on
+the GPU."""
 
 from __future__ import annotations
 

@@ -273,11 +273,16 @@ class DrapePipeline:
         return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
 
     def _x_inits(self, jobs: Sequence[Job], posed: PosedBodies) -> dict[int, Tensor]:
-        """X_init of every job that brings no start of its own, by job index. On the CPU with
-        more than one torch thread, the jobs of different bodies are skinned and limited in
-        parallel (bit-identical: each job's work is its own; the jobs of one body share that
-        body's surface and its kept searches, so they run in turn); the first job runs alone
-        first, so that what is built on first use (transfers, kernels, surfaces) is built once."""
+        """X_init of every job that brings no start of its own, by job index.
+
+        On the CPU with more than one torch thread, the jobs of different bodies are skinned and
+        limited in parallel (each job's work is its own; the jobs of one body share that body's
+        surface and its kept searches, so they run in turn); the first job runs alone first, so
+        that what is built on first use (transfers, kernels, surfaces) is built once. Otherwise
+        the jobs of one template on every body of the batch (a garment on many poses) are skinned
+        and limited together, as one batch of meshes (`SkinningTransfer.apply` on all the bodies:
+        the launches and searches of one job, not of each), and the others one by one. Each way
+        gives every job the X_init it gets alone, bit for bit."""
         todo = [i for i, job in enumerate(jobs) if job.x_init is None]
 
         def run(indices: list[int]) -> dict[int, Tensor]:
@@ -285,19 +290,39 @@ class DrapePipeline:
 
         if not todo:
             return {}
-        out = run(todo[:1])
         by_body: dict[int, list[int]] = {}
-        for i in todo[1:]:
+        for i in todo:
             by_body.setdefault(jobs[i].body, []).append(i)
         workers = min(torch.get_num_threads(), len(by_body))
         if workers < 2 or self.device.type != "cpu":
-            out.update(run(todo[1:]))
+            out = self._x_inits_together(jobs, todo, posed)
+            out.update(run([i for i in todo if i not in out]))
             return out
+        out = run(todo[:1])
         for i in todo[1:]:  # first use outside the threads: fitted transfers, selected surfaces
             self.transfer(jobs[i].template)
             posed.single(jobs[i].body, self.dtype, self.device)
-        for part in parallel_map(run, list(by_body.values()), "x-init", workers):
+        by_body[jobs[todo[0]].body].remove(todo[0])
+        for part in parallel_map(run, [part for part in by_body.values() if part], "x-init", workers):
             out.update(part)
+        return out
+
+    def _x_inits_together(self, jobs: Sequence[Job], todo: list[int], posed: PosedBodies) -> dict[int, Tensor]:
+        """X_init of the jobs in `todo` whose template (on its own rest shape) is draped on every
+        body of a batch of several, each template's as one batch over the bodies, by job index."""
+        everyone = list(range(posed.state.batch_size))
+        by_template: dict[str, list[int]] = {}
+        for i in todo:
+            if jobs[i].rest is None:
+                by_template.setdefault(jobs[i].template.key, []).append(i)
+        out = {}
+        for indices in by_template.values():
+            if len(everyone) < 2 or sorted({jobs[i].body for i in indices}) != everyone:
+                continue
+            with torch.no_grad():
+                x = self._transfer_here(jobs[indices[0]].template).apply(
+                    posed.state_on(self.device), surface=posed.surface(self.dtype, self.device))
+            out.update({i: x[jobs[i].body] for i in indices})
         return out
 
     def grip_band(self, template: Template) -> np.ndarray:

@@ -55,7 +55,7 @@ def limit_edge_stretch(
         rest_lengths: their rest lengths [m], shape (E,) or broadcastable (..., E), > 0.
         max_stretch: the bound on length / rest length (> 1).
         iterations: Jacobi sweeps at most (stops early once every edge is within 1 % of the bound
-            and every vertex above its floor).
+            and every vertex above its floor; each mesh of a batch on its own, as it would alone).
         relaxation: over-relaxation of the averaged corrections (1 = plain Jacobi; < 2).
         body: posed bodies to keep the vertices out of (one per leading index: x of shape
             (B, V, 3) with B bodies, or (V, 3) with one), or None for no contact; queried in its
@@ -97,26 +97,34 @@ def limit_edge_stretch(
     device = wp.device_from_torch(x.device)
     buffers = [torch.zeros_like(flat) for _ in range(3)]  # next positions, shift, velocity
     count = torch.zeros(flat.shape[0], dtype=torch.float64, device=x.device)
-    stats = torch.zeros(3, dtype=torch.float64, device=x.device)  # total excess, any edge over, any vertex under
+    # per copy: total excess, any edge over, any vertex under; a copy stops (its sweeps skip it)
+    # where a mesh alone would have stopped, so each copy ends where it ends alone, bit for bit
+    stats = torch.zeros(copies, 3, dtype=torch.float64, device=x.device)
+    active = torch.ones(copies, dtype=torch.int32, device=x.device)
+    copy_of_edge = torch.arange(copies, dtype=torch.int32, device=x.device).repeat_interleave(edges.shape[0])
+    copy_of_vertex = torch.arange(copies, dtype=torch.int32, device=x.device).repeat_interleave(num_verts)
     planes = torch.zeros(3, *flat.shape, dtype=torch.float64, device=x.device)  # closest, normal, (floor, 0, 0)
     w = {name: wp.from_torch(t, dtype=wp.vec3d) for name, t in
          (("x", flat), ("next", buffers[0]), ("shift", buffers[1]), ("velocity", buffers[2]),
           ("closest", planes[0]), ("normal", planes[1]), ("floor", planes[2]))}
     w_ends = wp.from_torch(ends.to(torch.int32).contiguous(), dtype=wp.int32)
     w_bound, w_count = wp.from_torch(bound, dtype=wp.float64), wp.from_torch(count, dtype=wp.float64)
-    w_stats = wp.from_torch(stats, dtype=wp.float64)
-    held, previous = False, None
+    w_stats, w_active = wp.from_torch(stats, dtype=wp.float64), wp.from_torch(active, dtype=wp.int32)
+    w_edge_copy, w_vertex_copy = wp.from_torch(copy_of_edge, dtype=wp.int32), wp.from_torch(copy_of_vertex, dtype=wp.int32)
+    held, previous, live = False, [None] * copies, [True] * copies
     with torch_stream(x.device):
         # the sweeps' launches, recorded once (their arrays stay the same): a recorded launch
         # replays without packing its arguments again, which costs more than a small kernel's
         # work on the CPU and holds the GIL that parallel X_inits share
         edge = wp.launch(edge_kernel, dim=ends.shape[0], device=device, record_cmd=True,
-                         inputs=[w["x"], w_ends, w_bound, w["shift"], w_count, w_stats])
+                         inputs=[w["x"], w_ends, w_bound, w_edge_copy, w_active, w["shift"], w_count, w_stats])
         depth = wp.launch(depth_kernel, dim=flat.shape[0], device=device, record_cmd=True,
-                          inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_stats])
+                          inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_vertex_copy, w_active,
+                                  w_stats])
         vertex = [wp.launch(vertex_kernel, dim=flat.shape[0], device=device, record_cmd=True,
                             inputs=[w["x"], w["shift"], w_count, w["velocity"], float(relaxation), float(momentum),
-                                    w["closest"], w["normal"], w["floor"], planes_held, w["next"]])
+                                    w["closest"], w["normal"], w["floor"], planes_held, w_vertex_copy, w_active,
+                                    w["next"]])
                   for planes_held in (0, 1)]
         for sweep in range(iterations):
             if body is not None and sweep % requery_every == 0:
@@ -131,12 +139,21 @@ def limit_edge_stretch(
             edge.launch()
             if held:
                 depth.launch()
-            total, over, under = stats.tolist()
-            if not under and not over:
+            restart = []
+            for c, (total, over, under) in enumerate(stats.tolist()):
+                if not live[c]:
+                    continue
+                if not under and not over:
+                    live[c] = False  # done: its sweeps stop here
+                    active[c] = 0
+                    continue
+                if previous[c] is not None and total > previous[c]:
+                    restart.append(c)  # adaptive restart: the momentum overshot
+                previous[c] = total
+            if not any(live):
                 break
-            if previous is not None and total > previous:
-                buffers[2].zero_()  # adaptive restart: the momentum overshot
-            previous = total
+            if restart:
+                buffers[2].view(copies, num_verts, 3)[restart] = 0.0
             vertex[int(held)].launch()
             flat.copy_(buffers[0])
     out = flat.reshape(shape).to(x.dtype)
@@ -149,20 +166,24 @@ def _kernels():
     """The sweep's Warp kernels (defined on first use; Warp caches the binaries on disk).
 
     edge: each edge longer than its bound moves both ends half the excess along it (atomically
-    summed per vertex, with the count of such edges); adds the excess to stats[0] and flags
-    stats[1] when it is over 1 % of the bound. vertex: the averaged shift times the relaxation,
-    plus momentum times the last move; with held planes, back up to the floor along the plane's
-    normal; the shift and count are cleared for the next sweep. depth: flags stats[2] when a
-    vertex is more than `tol` below its floor.
+    summed per vertex, with the count of such edges); adds the excess to its copy's stats[c, 0]
+    and flags stats[c, 1] when it is over 1 % of the bound. vertex: the averaged shift times the
+    relaxation, plus momentum times the last move; with held planes, back up to the floor along
+    the plane's normal; the shift and count are cleared for the next sweep. depth: flags
+    stats[c, 2] when a vertex is more than `tol` below its floor. Each skips the elements of the
+    copies that are no longer active (a vertex of one keeps its position).
     """
     wp = warp()
     f64 = wp.float64
 
     @wp.kernel(enable_backward=False)
     def edge_kernel(x: wp.array(dtype=wp.vec3d), ends: wp.array2d(dtype=wp.int32), bound: wp.array(dtype=wp.float64),
-                    shift: wp.array(dtype=wp.vec3d), count: wp.array(dtype=wp.float64),
-                    stats: wp.array(dtype=wp.float64)):
+                    copy: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), shift: wp.array(dtype=wp.vec3d),
+                    count: wp.array(dtype=wp.float64), stats: wp.array2d(dtype=wp.float64)):
         e = wp.tid()
+        c = copy[e]
+        if active[c] == 0:
+            return
         i = ends[e, 0]
         j = ends[e, 1]
         d = x[j] - x[i]
@@ -174,16 +195,20 @@ def _kernels():
             wp.atomic_sub(shift, j, half)
             wp.atomic_add(count, i, f64(1.0))
             wp.atomic_add(count, j, f64(1.0))
-            wp.atomic_add(stats, 0, excess)
+            wp.atomic_add(stats, c, 0, excess)
             if excess > f64(1e-2) * bound[e]:
-                stats[1] = f64(1.0)
+                stats[c, 1] = f64(1.0)
 
     @wp.kernel(enable_backward=False)
     def vertex_kernel(x: wp.array(dtype=wp.vec3d), shift: wp.array(dtype=wp.vec3d), count: wp.array(dtype=wp.float64),
                       velocity: wp.array(dtype=wp.vec3d), relaxation: wp.float64, momentum: wp.float64,
                       closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
-                      floor: wp.array(dtype=wp.vec3d), held: int, out: wp.array(dtype=wp.vec3d)):
+                      floor: wp.array(dtype=wp.vec3d), held: int, copy: wp.array(dtype=wp.int32),
+                      active: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.vec3d)):
         v = wp.tid()
+        if active[copy[v]] == 0:
+            out[v] = x[v]
+            return
         moved = x[v] + relaxation * shift[v] / wp.max(count[v], f64(1.0)) + momentum * velocity[v]
         if held != 0:
             depth = floor[v][0] - wp.dot(moved - closest[v], normal[v])
@@ -196,9 +221,11 @@ def _kernels():
 
     @wp.kernel(enable_backward=False)
     def depth_kernel(x: wp.array(dtype=wp.vec3d), closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
-                     floor: wp.array(dtype=wp.vec3d), tol: wp.float64, stats: wp.array(dtype=wp.float64)):
+                     floor: wp.array(dtype=wp.vec3d), tol: wp.float64, copy: wp.array(dtype=wp.int32),
+                     active: wp.array(dtype=wp.int32), stats: wp.array2d(dtype=wp.float64)):
         v = wp.tid()
-        if floor[v][0] - wp.dot(x[v] - closest[v], normal[v]) > tol:
-            stats[2] = f64(1.0)
+        c = copy[v]
+        if active[c] != 0 and floor[v][0] - wp.dot(x[v] - closest[v], normal[v]) > tol:
+            stats[c, 2] = f64(1.0)
 
     return wp, edge_kernel, vertex_kernel, depth_kernel
