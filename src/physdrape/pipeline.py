@@ -9,11 +9,12 @@ edge-stretch limited with the body held out; paper Eq. 5) unless the job brings 
 warm-started frame of a sequence). What does not change between drapes is computed once and
 cached per template: its skinning transfer onto the body model and its rest-state `Garment`.
 
-Devices: bodies are posed where the body model runs (the CPU, in `POSE_DTYPE`); garments are
-skinned and their stretch limited (X_init, still in `POSE_DTYPE`) on the pipeline's device,
-against the posed bodies' surfaces there, the model's own, and the `DrapeInput` handed to the
-model (garments, cloth, X_init, body surfaces) is built there, the templates' rest states and
-transfers cached there. On a GPU a new pose then costs no body surface on the CPU. A `PosedBodies` holds the
+Devices: bodies come posed in `POSE_DTYPE` wherever their caller posed them (the API poses them on
+its device); garments are skinned and their stretch limited (X_init, still in `POSE_DTYPE`) on the
+pipeline's device, against the posed bodies' surfaces there, the model's own, and the
+`DrapeInput` handed to the model (garments, cloth, X_init, body surfaces) is built there, the
+templates' rest states and transfers cached there. On a GPU a new pose then costs no body surface
+on the CPU. A `PosedBodies` holds the
 body surfaces (Warp BVHs) of one posed batch, built on first use: a caller that drapes on the
 same bodies again (the API, for a shape and pose it has seen) hands the same `PosedBodies` back
 and builds no surface twice.
@@ -99,7 +100,7 @@ class PosedBodies:
     """A posed body batch and its body surfaces, each built once, on first use.
 
     Args:
-        state: the posed bodies (B bodies, in `POSE_DTYPE` where the body model runs).
+        state: the posed bodies (B bodies, in `POSE_DTYPE`, on any device).
     """
 
     def __init__(self, state: BodyState) -> None:

@@ -94,3 +94,17 @@ def test_pose_sampler_rejects_arm_through_torso(anny_body, monkeypatch):
     assert (arm_torso_penetration(anny_body(s, raw), anny_body) > 0).all()  # the draws do penetrate
     out = sample_poses(anny_body, 2, seed=0, config=PoseSamplerConfig(max_tries=1), dtype=torch.float64)
     assert arm_torso_penetration(anny_body(s, out), anny_body).tolist() == [0, 0]
+
+
+@pytest.mark.anny
+@pytest.mark.parametrize("device", DEVICES)
+def test_bodies_pose_on_every_device(anny_body, device):
+    """The Anny body poses where its inputs are (the Draper poses on its device): the same bodies
+    as on the CPU, in float64."""
+    shapes = sample_shapes(2, seed=1, dtype=torch.float64)
+    poses = sample_poses(anny_body, 2, seed=2, shape=shapes, dtype=torch.float64)
+    on_cpu = anny_body(shapes, poses)
+    there = anny_body(shapes.to(device), poses.to(device))
+    assert there.verts.device.type == device and there.faces.device.type == device
+    for name in ("verts", "normals", "rest_verts", "vertex_transforms", "joints"):
+        torch.testing.assert_close(getattr(there, name).cpu(), getattr(on_cpu, name), rtol=0, atol=1e-10)

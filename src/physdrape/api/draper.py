@@ -5,9 +5,10 @@ materials into jobs, drapes the independent jobs in batches through the drape pi
 (`physdrape.pipeline`) and the model, then the frames of warm-started motions one by one
 (`physdrape.api.sequences`), and packs one `DrapeResult` per job.
 
-The model, its solver and collision handler, the body queries and the pipeline's output live on
-the Draper's device ("cpu" or a CUDA GPU); bodies are posed, garments skinned and drapes refined
-by the oracle on the CPU, and results are numpy arrays whatever the device.
+The model, its solver and collision handler, the body queries, the posed bodies (and the check of
+their arms against the torso), X_init and the pipeline's output live on the Draper's device
+("cpu" or a CUDA GPU); garments sized to a body, the warm starts of motions and drapes refined by
+the oracle are computed on the CPU, and results are numpy arrays whatever the device.
 """
 
 from __future__ import annotations
@@ -365,7 +366,7 @@ class Draper:
                 self._posed.move_to_end(key)
                 return self._posed[key]
         body = self.body(rig)
-        state = body(shapes, poses)
+        state = body(shapes.to(self.device), poses.to(self.device))  # posed where the drape runs
         if self.check_pose and checks_arms(rig):
             self._refuse_penetrating_poses(state, body, labels)
         posed = PosedBodies(state)
@@ -416,6 +417,7 @@ class Draper:
         shapes = torch.cat([shape if p.shape is None else p.shape for p in poses.values()]).to(POSE_DTYPE)
         posed = self._posed_bodies(rig, shapes, pose_t, [p.label for p in poses.values()])
         state = posed.state
+        on_cpu = posed.state_on("cpu")  # for what runs on the CPU: sizing, warm starts of sequences
         t1 = time.perf_counter()
         pipeline_jobs, following = [], []
         for k, job in enumerate(jobs):
@@ -423,11 +425,11 @@ class Draper:
             x_init = None
             transforms = None
             if job.pose.sequence is not None or (warm is not None and warm[k] is not None):
-                transforms = sequences.blended_transforms(pipeline.transfer(job.template), select(state, b))
+                transforms = sequences.blended_transforms(pipeline.transfer(job.template), select(on_cpu, b))
             if warm is not None and warm[k] is not None:
                 x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
-                                                transforms, select(state, b))
-            pipeline_jobs.append(self._wearing.job(job.template, b, job.material, x_init, wear, state,
+                                                transforms, select(on_cpu, b))
+            pipeline_jobs.append(self._wearing.job(job.template, b, job.material, x_init, wear, on_cpu,
                                                    shapes[b:b + 1], pipeline))
             following.append(transforms)
         inp = pipeline.build(pipeline_jobs, posed)
@@ -438,7 +440,7 @@ class Draper:
         t3 = time.perf_counter()
         convergence = solver_convergence(out, inp, len(jobs)) if keep_trace else [{} for _ in jobs]
         t3b = time.perf_counter()
-        if refine:  # the oracle runs on the CPU (scipy's sparse factorisations), where the bodies are posed
+        if refine:  # the oracle runs on the CPU (scipy's sparse factorisations)
             c64 = Cloth.build(inp.garments.to(torch.float64, device="cpu"), [job.material for job in jobs])
             c64 = c64.with_terms_of(inp.cloth)  # the oracle minimises the same energy (grip, stitches)
             b64 = BodySurface(state.verts.to(device="cpu", dtype=torch.float64), state.faces)
