@@ -388,8 +388,8 @@ class Draper:
             )
 
     def _drape_part(self, jobs: list[_Job], shape: Tensor, **options) -> tuple[list[DrapeResult], list[_Warm | None]]:
-        """`_drape_batch` of one rig's jobs, split between CPU threads by pose (`api.batch_threads`)
-        where torch has several."""
+        """`_drape_batch` of one rig's jobs, on the CPU split by pose between torch's threads and
+        into packs of at most `api.batch_threads.CPU_PACK_VERTICES` vertices."""
         groups = thread_groups(jobs, self.device, refine=options["refine"])
         if len(groups) < 2:
             return self._drape_batch(jobs, shape, **options)
