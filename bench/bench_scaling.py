@@ -20,9 +20,10 @@ size in a fresh subprocess of this script (`--worker`), so that its peak memory
   and 2), the thread counts alternating call by call in one process per batch size (the
   machine's drift over a run, which on a shared machine exceeds the effect of a second thread,
   then weighs on each count alike): garments per second and ms per garment (median of
-  `--repeats` calls per count after a warm-up round), and the ratio of 2 threads over 1. On 2
-  threads a batch of several poses drapes as two groups side by side (`api.batch_threads`); its
-  phases are then the first group's, over n. `--batch-poses fresh` (the default) drapes n new poses each
+  `--repeats` calls per count after a warm-up round), and the ratio of 2 threads over 1. On the
+  CPU a batch of several poses drapes as groups (`api.batch_threads`: one per thread side by
+  side, and packs of at most `CPU_PACK_VERTICES` vertices); its phases are the groups' summed,
+  over n. `--batch-poses fresh` (the default) drapes n new poses each
   call (drawn beforehand with the API's `random:SEED` sampler and passed as arrays, so the
   posing, arm check and body surfaces are paid as a dataset pays them); `same` repeats one set of n
   poses (posed bodies kept).
@@ -182,6 +183,13 @@ def _peak(r: dict) -> str:
     return f"{r['peak_rss_gib']:.2f}" + ("" if gpu is None else f" (GPU {gpu:.2f})")
 
 
+def _group_phases(results) -> dict[str, float]:
+    """A batch's phase times [s] summed over the groups it draped in (each result's timings are its
+    group's: over the group's size per result, summed over the results)."""
+    keys = [k for k in results[0].timings if k.endswith("_s")]
+    return {k: sum(r.timings[k] / r.timings["batch_size"] for r in results) for k in keys}
+
+
 def worker(spec: dict) -> dict:
     """Drape one configuration: `spec` = {garment, batch, threads, steps, repeats, poses}."""
     import torch
@@ -253,7 +261,7 @@ def batch_worker(spec: dict) -> list[dict]:
             call += 1
             if len(results) != n:
                 raise RuntimeError(f"{len(results)} results for a batch of {n}")
-            record = {"wall_s": wall, **{k: v for k, v in results[0].timings.items() if k.endswith("_s")},
+            record = {"wall_s": wall, **_group_phases(results),
                       **timer.phases(), "b2g_percent": float(np.mean([r.metrics["b2g_percent"] for r in results]))}
             if round_:
                 records[threads].append(record)
@@ -357,9 +365,11 @@ def write_markdown(path: Path, header: dict, args, sizes: list[dict], batches: l
              (f"## Throughput against batch size and threads (the bundled T-shirt on n poses, "
              f"{args.batch_poses} poses every call)"), "",
              ("garments / s = n / (wall time of one `Draper.drape` call of n garments, batch_size = n); the "
-             "phases per garment are `DrapeResult.timings` over n (on 2 threads, where the batch drapes as two "
-             "groups side by side, the first group's timings); the peak RSS is that of the batch size's "
-             "process, over all its thread counts."), "", *batch_table(batches), ""]
+             "phases per garment are `DrapeResult.timings` summed over the groups the batch drapes in, over n "
+             "(on the CPU a batch drapes as groups: one per thread side by side, and packs of at most "
+             "`api.batch_threads.CPU_PACK_VERTICES` vertices; on 2 threads the groups' phases overlap, so they "
+             "add up to more than the wall time); the peak RSS is that of the batch size's process, over all "
+             "its thread counts."), "", *batch_table(batches), ""]
     path.write_text("\n".join(lines))
 
 
