@@ -5,6 +5,7 @@ the GPU."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from device_params import needs_cuda
 
@@ -42,3 +43,6 @@ def test_x_init_on_the_gpu_matches_the_cpus(anny_body):
     assert on_gpu.x_init.device.type == "cuda"
     assert not any(key[-1].type == "cpu" for key in posed._surfaces if isinstance(key[-1], torch.device))
     torch.testing.assert_close(on_gpu.x_init.cpu(), on_cpu.x_init, rtol=0, atol=1e-4)
+    # a garment sized to a body: its rest shape made on the GPU, from the posed bodies there
+    np.testing.assert_allclose(DrapePipeline(anny_body, device="cuda").fitted_rest(template, posed, 1),
+                               DrapePipeline(anny_body).fitted_rest(template, state, 1), rtol=0, atol=1e-9)

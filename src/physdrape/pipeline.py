@@ -233,11 +233,14 @@ class DrapePipeline:
             return self._transfer_here(template).apply(body, rest_verts=rest_t,
                                                        surface=posed.single(index, self.dtype, self.device))[0]
 
-    def fitted_rest(self, template: Template, state: BodyState, index: int = 0) -> np.ndarray:
+    def fitted_rest(self, template: Template, state: BodyState | PosedBodies, index: int = 0) -> np.ndarray:
         """The skinning transfer's shape part X_temp + ΔX_shape [m] (V, 3) float64 on body `index`
-        of `state`: the rest shape of a mesh garment sized to fit (`garments.sizing`)."""
+        of `state`: the rest shape of a mesh garment sized to fit (`garments.sizing`); computed on
+        the pipeline's device."""
+        posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
         with torch.no_grad():
-            return self.transfer(template).shaped_rest(select(state, index))[0].to(torch.float64).cpu().numpy()
+            body = select(posed.state_on(self.device), index)
+            return self._transfer_here(template).shaped_rest(body)[0].to(torch.float64).cpu().numpy()
 
     def build(self, jobs: Sequence[Job], state: BodyState | PosedBodies) -> DrapeInput:
         """The model's input for `jobs` on the posed bodies of `state` (one job per garment), on the

@@ -7,8 +7,8 @@ materials into jobs, drapes the independent jobs in batches through the drape pi
 
 The model, its solver and collision handler, the body queries, the posed bodies (and the check of
 their arms against the torso), X_init and the pipeline's output live on the Draper's device
-("cpu" or a CUDA GPU); garments sized to a body, the warm starts of motions and drapes refined by
-the oracle are computed on the CPU, and results are numpy arrays whatever the device.
+("cpu" or a CUDA GPU); the warm starts of motions and drapes refined by the oracle are computed
+on the CPU, and results are numpy arrays whatever the device.
 """
 
 from __future__ import annotations
@@ -417,7 +417,6 @@ class Draper:
         shapes = torch.cat([shape if p.shape is None else p.shape for p in poses.values()]).to(POSE_DTYPE)
         posed = self._posed_bodies(rig, shapes, pose_t, [p.label for p in poses.values()])
         state = posed.state
-        on_cpu = posed.state_on("cpu")  # for what runs on the CPU: sizing, warm starts of sequences
         t1 = time.perf_counter()
         pipeline_jobs, following = [], []
         for k, job in enumerate(jobs):
@@ -425,11 +424,13 @@ class Draper:
             x_init = None
             transforms = None
             if job.pose.sequence is not None or (warm is not None and warm[k] is not None):
+                # a motion's warm starts are carried on the CPU, with the posed bodies' CPU copy
+                on_cpu = posed.state_on("cpu")
                 transforms = sequences.blended_transforms(pipeline.transfer(job.template), select(on_cpu, b))
-            if warm is not None and warm[k] is not None:
-                x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
-                                                transforms, select(on_cpu, b))
-            pipeline_jobs.append(self._wearing.job(job.template, b, job.material, x_init, wear, on_cpu,
+                if warm is not None and warm[k] is not None:
+                    x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
+                                                    transforms, select(on_cpu, b))
+            pipeline_jobs.append(self._wearing.job(job.template, b, job.material, x_init, wear, posed,
                                                    shapes[b:b + 1], pipeline))
             following.append(transforms)
         inp = pipeline.build(pipeline_jobs, posed)

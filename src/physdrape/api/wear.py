@@ -83,7 +83,8 @@ class Wearing:
 
     def job(self, template: Template, body: int, material, x_init: Tensor | None, wear: Wear, state,
             shape: Tensor, pipeline: DrapePipeline) -> Job:
-        """The pipeline job of `template` on body `body` of the posed `state` (its shape (1, S))."""
+        """The pipeline job of `template` on body `body` of the posed `state` (a `BodyState` or a
+        `pipeline.PosedBodies`; its shape (1, S))."""
         if isinstance(wear.closures, str):
             stitches = pipeline.closure_pairs(template) if wear.closures == "auto" else None
         else:
