@@ -31,7 +31,7 @@ def test_parallel_x_inits_equal_one_threads(anny_body, threads):
 
 
 @needs_cuda
-def test_x_init_on_the_gpu_matches_the_cpus(anny_body):
+def test_x_init_on_cuda_matches_the_cpus(anny_body):
     """On a GPU pipeline the garments are skinned and limited on the GPU, against the posed bodies'
     surfaces there; X_init agrees with the CPU's to well below a millimetre."""
     template = garment_template("default")
