@@ -5,10 +5,9 @@ materials into jobs, drapes the independent jobs in batches through the drape pi
 (`physdrape.pipeline`) and the model, then the frames of warm-started motions one by one
 (`physdrape.api.sequences`), and packs one `DrapeResult` per job.
 
-The model, its solver and collision handler, the body queries, the posed bodies (and the check of
-their arms against the torso), X_init and the pipeline's output live on the Draper's device
-("cpu" or a CUDA GPU); the warm starts of motions and drapes refined by the oracle are computed
-on the CPU, and results are numpy arrays whatever the device.
+The model, its solver and handler, the body queries, the posed bodies (and their arm check), X_init
+and the pipeline's output live on the Draper's device ("cpu" or a CUDA GPU); motions' warm starts
+and the oracle's refinement run on the CPU, and results are numpy arrays whatever the device.
 """
 
 from __future__ import annotations
@@ -421,11 +420,9 @@ class Draper:
         pipeline_jobs, following = [], []
         for k, job in enumerate(jobs):
             b = slot[job.pose_id]
-            x_init = None
-            transforms = None
+            x_init = transforms = None
             if job.pose.sequence is not None or (warm is not None and warm[k] is not None):
-                # a motion's warm starts are carried on the CPU, with the posed bodies' CPU copy
-                on_cpu = posed.state_on("cpu")
+                on_cpu = posed.state_on("cpu")  # a motion's warm starts are carried on the CPU
                 transforms = sequences.blended_transforms(pipeline.transfer(job.template), select(on_cpu, b))
                 if warm is not None and warm[k] is not None:
                     x_init = sequences.carried_init(pipeline.transfer(job.template), warm[k].x, warm[k].transforms,
