@@ -286,7 +286,7 @@ class DrapePipeline:
         the jobs of one template on every body of the batch (a garment on many poses) are skinned
         and limited together, as one batch of meshes (`SkinningTransfer.apply` on all the bodies:
         the launches and searches of one job, not of each), and the others one by one. Each way
-        gives every job the X_init it gets alone, bit for bit."""
+        gives every job the X_init it gets alone (on the CPU bit for bit)."""
         todo = [i for i, job in enumerate(jobs) if job.x_init is None]
 
         def run(indices: list[int]) -> dict[int, Tensor]:

@@ -98,7 +98,8 @@ def limit_edge_stretch(
     buffers = [torch.zeros_like(flat) for _ in range(3)]  # next positions, shift, velocity
     count = torch.zeros(flat.shape[0], dtype=torch.float64, device=x.device)
     # per copy: total excess, any edge over, any vertex under; a copy stops (its sweeps skip it)
-    # where a mesh alone would have stopped, so each copy ends where it ends alone, bit for bit
+    # where a mesh alone would have stopped, so each copy ends where it ends alone (on the CPU bit
+    # for bit; CUDA's atomic sums round in no fixed order)
     stats = torch.zeros(copies, 3, dtype=torch.float64, device=x.device)
     active = torch.ones(copies, dtype=torch.int32, device=x.device)
     copy_of_edge = torch.arange(copies, dtype=torch.int32, device=x.device).repeat_interleave(edges.shape[0])
