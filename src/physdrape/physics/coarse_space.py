@@ -33,8 +33,8 @@ patches are numbered (reverse Cuthill–McKee) so that those couplings lie in a 
 diagonal: on the CPU the matrix is assembled and factorised in band storage (LAPACK's pbtrf and
 pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense (cuSOLVER), where a
 few hundred unknowns cost little either way and the garments of one topology (a batch of one
-garment on many bodies) are factorised and solved together, in one batched call each. The correction is differentiable in r (P and the
-factor are constants).
+garment on many bodies) are factorised and solved together, in one batched call each. The
+correction is differentiable in r (P and the factor are constants).
 
 Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
 the Galerkin product, the factorisation (each garment's coarse system is small, at most
