@@ -26,9 +26,9 @@ Sequences: a multi-frame `Motion` is draped frame by frame with a warm start (ea
 from the previous frame's drape carried along by the body's motion, see `Motion`);
 ``Motion(..., warm_start=False)`` drapes every frame independently, as one batch.
 
-Devices: ``Draper(device="cuda")`` runs the model, its solver and collision handler and the body
-queries on a GPU (the default is "cpu"); bodies are posed and garments skinned on the CPU, and
-results are numpy arrays either way.
+Devices: ``Draper(device="cuda")`` poses the bodies, skins the garments and runs the model, its
+solver and collision handler and the body queries on a GPU (the default is "cpu"); a motion's
+warm starts and the oracle's refinement run on the CPU, and results are numpy arrays either way.
 
 Datasets: `run_manifest(draper, "jobs.jsonl", "out/")` drapes a JSON-lines manifest, one job per
 line, into one folder per job, resumable and sharded by rank (docs/manifest.md).
