@@ -10,9 +10,9 @@ time may use. A group's results are those of draping it as a batch of its own.
 
 On the CPU a group also holds at most about `CPU_PACK_VERTICES` garment vertices: a packed batch
 much larger than that costs more per garment than the same garments in smaller packs one after
-another (its per-vertex arrays, the GNN's edge latents above all, no longer fit in the caches
-between the ops that reuse them), so a large batch drapes as several groups, as many at a time as
-there are threads (`bench/bench_scaling.py`'s batch rows).
+another (32 T-shirts in one pack against packs of 8; likely its per-vertex arrays outgrowing the
+caches), so a large batch drapes as several groups, as many at a time as there are threads
+(`bench/bench_scaling.py`'s batch rows time it).
 """
 
 from __future__ import annotations
