@@ -191,6 +191,36 @@ def test_query_matches_brute_force(name, sign_method):
     assert torch.allclose(q.normal[off], expected_n[off], atol=1e-5)
 
 
+@pytest.mark.parametrize("name", list(MESHES))
+def test_a_walk_from_the_faces_of_a_small_move_ago_finds_the_closest_faces(name):
+    """query(near=faces of an earlier query) walks from them to the closest faces: after a move of
+    a fraction of an edge, the distances of brute force over all faces, and the BVH search's
+    closest points, normals and inside flags; after a move of several edges, a face at least as
+    close as the one it started from."""
+    verts, faces = MESHES[name]()
+    surface = BodySurface(verts, faces)
+    x0 = sample_points(verts, faces, 600, 0, seed=3, offset=0.02)
+    start = surface.query(x0).face
+    g = torch.Generator().manual_seed(4)
+    x1 = x0 + 2e-3 * torch.randn(x0.shape, generator=g, dtype=x0.dtype)
+    walked, searched = surface.query(x1, near=start), surface.query(x1)
+    dist, _, _, gap = brute_force_closest(x1, verts, faces)
+    assert not torch.equal(walked.face, start)  # the walk moved
+    torch.testing.assert_close(walked.signed_distance.abs(), dist, atol=1e-12, rtol=0)
+    clear = gap > 1e-4
+    assert clear.sum() > 0.3 * len(x1)
+    for field in ("closest", "normal", "signed_distance", "inside"):
+        torch.testing.assert_close(getattr(walked, field)[clear], getattr(searched, field)[clear], atol=1e-12, rtol=0)
+    x2 = x0 + 0.05 * torch.randn(x0.shape, generator=g, dtype=x0.dtype)
+    far = surface.query(x2, near=start)
+    from_start = surface.query(x2, near=start).closest
+    corners = verts[faces[start]]
+    start_dist = closest_point_on_triangle(x2, corners[:, 0], corners[:, 1], corners[:, 2])[0]
+    assert ((x2 - far.closest).norm(dim=-1) <= (x2 - start_dist).norm(dim=-1) + 1e-12).all()
+    assert torch.equal(far.closest, from_start)  # deterministic
+    assert ((x2 - far.closest).norm(dim=-1) < (x2 - start_dist).norm(dim=-1) - 1e-3).any()
+
+
 def test_open_mesh_winding_number_is_robust():
     """A sphere with a hole: inside follows the generalized winding number, not ray parity."""
     verts, faces = icosphere(3)

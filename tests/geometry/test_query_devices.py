@@ -75,3 +75,26 @@ def test_queries_on_device_match_the_cpu(device, sign):
     body = torch.arange(2, device=device).repeat_interleave(3000)
     surface.query(packed, body_index=body).signed_distance.sum().backward()
     assert packed.grad.device.type == device and bool(torch.isfinite(packed.grad).all())
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_walks_on_device_match_the_cpus(device):
+    """query(near=...) walks from the given faces on the surface's device, to the CPU's faces, on
+    a batch of two bodies with packed points."""
+    verts, faces = _spheres()
+    g = torch.Generator().manual_seed(1)
+    points = torch.randn(2, 2000, 3, dtype=torch.float64, generator=g) * 0.12
+    cpu = BodySurface(verts, faces)
+    surface = cpu.to(device)
+    start = cpu.query(points).face
+    moved = points + 2e-3 * torch.randn(points.shape, dtype=points.dtype, generator=g)
+    body = torch.arange(2).repeat_interleave(2000)
+    want = cpu.query(moved.reshape(-1, 3), body_index=body, near=start.reshape(-1))
+    got = surface.query(moved.reshape(-1, 3).to(device), body_index=body.to(device), near=start.reshape(-1).to(device))
+    assert got.face.device.type == device and not torch.equal(want.face, start.reshape(-1))
+    assert torch.equal(got.face.cpu(), want.face)  # float64 tests in a fixed order: the same walk
+    torch.testing.assert_close(got.closest.cpu(), want.closest, atol=1e-12, rtol=0)
+    # each body's walk stays on that body: its closest points are the BVH's on the same body
+    searched = cpu.query(moved.reshape(-1, 3), body_index=body)
+    torch.testing.assert_close((moved.reshape(-1, 3) - want.closest).norm(dim=-1),
+                               (moved.reshape(-1, 3) - searched.closest).norm(dim=-1), atol=1e-6, rtol=0)

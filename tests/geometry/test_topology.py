@@ -103,3 +103,16 @@ def test_smoothed_prolongation_is_a_smooth_partition_of_unity():
     # smoother: the jump of a patch's weight across a mesh edge is smaller than the indicator's
     jump = lambda m: np.abs(m[edges[:, 0]] - m[edges[:, 1]]).max(1).mean()
     assert jump(p) < 0.6 * jump(raw)
+
+
+def test_face_rings_are_the_other_faces_at_a_faces_vertices():
+    _, faces = grid_sheet(4, 3)
+    faces = np.concatenate([faces, [[100, 101, 102]]])  # a lone face: an empty ring
+    rings = topology.face_rings(faces)
+    num_faces = len(faces)
+    for f, tri in enumerate(faces):
+        want = sorted({g for g, other in enumerate(faces) if g != f and set(tri) & set(other)})
+        got = rings[f][rings[f] < num_faces].tolist()
+        assert got == want, f
+    assert rings.shape[1] == max(len(r[r < num_faces]) for r in rings)
+    assert topology.face_rings(np.zeros((0, 3), np.int64)).shape == (0, 0)

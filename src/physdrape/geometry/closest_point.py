@@ -7,7 +7,9 @@ float64, the angle-weighted pseudo-normal of the face, edge or vertex it lies on
 point against it, the outward normal and the signed distance. `closest_point_on_indexed_triangles`
 and `closest_point_on_triangle` compute the closest point alone, on triangles given by rows of a
 vertex table or by their corners (the garment sizing and the skinning transfer, on candidate
-triangles of their own); both kernels share one closest-point function.
+triangles of their own); `walk_to_closest_faces` finds a point's closest triangle near one it
+starts from (a body query of points that moved a little, instead of the BVH search); the
+kernels share one closest-point function.
 
 One kernel launch per call replaces a chain of a few dozen torch ops over the points (region
 tests, selections, gathers, norms, signs), each costing more in per-op overhead than in
@@ -32,7 +34,8 @@ from torch import Tensor
 
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["SurfacePoints", "closest_point_on_indexed_triangles", "closest_point_on_triangle", "closest_surface_points"]
+__all__ = ["SurfacePoints", "closest_point_on_indexed_triangles", "closest_point_on_triangle", "closest_surface_points",
+           "walk_to_closest_faces"]
 
 
 @defined_once
@@ -156,7 +159,40 @@ def _kernels() -> dict:
         distance[i] = wp.dot(r, n)
         flags[i] = wp.where(inside, 1, 0) + wp.where(near, 2, 0)
 
-    return {"wp": wp, "closest": closest_kernel, "surface": surface_kernel}
+    @wp.func
+    def distance_sq(x: wp.vec3d, verts: wp.array(dtype=wp.vec3d), row: wp.int32, faces: wp.array2d(dtype=wp.int32),
+                    f: wp.int32):
+        a = verts[row + faces[f, 0]]
+        b = verts[row + faces[f, 1]]
+        c = verts[row + faces[f, 2]]
+        w = closest_bary(x, a, b, c)
+        r = x - (w[0] * a + w[1] * b + w[2] * c)
+        return wp.dot(r, r)
+
+    @wp.kernel
+    def walk_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
+                    body: wp.array(dtype=wp.int32), start: wp.array(dtype=wp.int32), num_verts: wp.int32,
+                    faces: wp.array2d(dtype=wp.int32), rings: wp.array2d(dtype=wp.int32), max_moves: wp.int32,
+                    face: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        row = body[i] * num_verts
+        x = points[i]
+        best = start[i]
+        best_d = distance_sq(x, verts, row, faces, best)
+        for _move in range(max_moves):
+            centre = best
+            for j in range(rings.shape[1]):
+                g = rings[centre, j]
+                if g < faces.shape[0]:  # the table's padding is the face count
+                    d = distance_sq(x, verts, row, faces, g)
+                    if d < best_d:
+                        best_d = d
+                        best = g
+            if best == centre:
+                break
+        face[i] = best
+
+    return {"wp": wp, "closest": closest_kernel, "surface": surface_kernel, "walk": walk_kernel}
 
 
 def _vec3(wp, t: Tensor):
@@ -357,3 +393,35 @@ def closest_surface_points(points: Tensor, verts: Tensor, body: Tensor, face: Te
         points, verts, body, face, vertex_normals.shape[1], faces, (face_normals, edge_normals, vertex_normals),
         near_tol)
     return SurfacePoints(closest, bary, normal, distance, (flags & 1).bool(), (flags & 2).bool())
+
+
+def walk_to_closest_faces(points: Tensor, verts: Tensor, body: Tensor, start: Tensor, faces: Tensor,
+                          rings: Tensor, *, num_verts: int, max_moves: int = 4) -> Tensor:
+    """The closest triangle of each point near a triangle it starts from: the start and its ring
+    (the triangles that share a vertex with it) are tested, the closest becomes the next start,
+    until the start stays (or after `max_moves` moves). A local search, in one launch: it ends on
+    a triangle at least as close as the start, the closest of the surface wherever that lies
+    within the rings it walks through (a point that has moved a fraction of an edge length since
+    its start was its closest triangle), and can stop short of a closer sheet farther along the
+    surface (another limb), which only a search of the whole surface finds.
+
+    Args:
+        points: (M, 3) float64 contiguous [m]; verts: the bodies' vertices flattened (B · N, 3)
+            float64 contiguous (N = num_verts); body, start: each point's body and starting
+            triangle (M,) int32 contiguous; faces: (F, 3) int32 contiguous.
+        rings: each triangle's ring, (F, W) int32 contiguous, padded with F
+            (`geometry.topology.face_rings`).
+
+    Returns:
+        face: (M,) int32; of equally close triangles the first found (deterministic).
+    """
+    wp = _kernels()["wp"]
+    face = torch.empty(points.shape[0], dtype=torch.int32, device=points.device)
+    if points.shape[0]:
+        with torch_stream(points.device):
+            wp.launch(_kernels()["walk"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                      inputs=[_vec3(wp, points), _vec3(wp, verts), launch_arg(body, wp.int32),
+                              launch_arg(start, wp.int32), int(num_verts), _int2d(wp, faces), _int2d(wp, rings),
+                              int(max_moves)],
+                      outputs=[launch_arg(face, wp.int32)])
+    return face

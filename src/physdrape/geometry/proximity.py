@@ -10,7 +10,9 @@ Split of the work:
 1. **Search (not differentiated, `geometry.body_bvh`)**: NVIDIA Warp's triangle-mesh BVH
    (``wp.Mesh``, built once per body, ``refit()`` when only the vertex positions change) finds the
    closest triangle of every point in float32 and, if asked, the generalized winding number
-   (Warp's fast winding number, Barill et al. 2018) for the inside test.
+   (Warp's fast winding number, Barill et al. 2018) for the inside test. Points that moved a
+   little since an earlier query can instead walk from their earlier triangles to the closest
+   ones around them (``query(near=...)``, `closest_point.walk_to_closest_faces`), in float64.
 2. **Geometry (differentiable, float64, `geometry.closest_point`)**: the closest point on the
    found triangle is recomputed (Ericson's region test, a Warp kernel with its adjoint as the
    backward) in float64 and returned in the dtype of the input, so ``closest``,
@@ -58,10 +60,13 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.body_bvh import BodyBVH
-from physdrape.geometry.closest_point import closest_surface_points
+from physdrape.geometry.closest_point import (
+    closest_surface_points,
+    walk_to_closest_faces,
+)
 from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
-from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces
+from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces, face_rings
 
 __all__ = [
     "DOUBT_RADIUS_EDGES",
@@ -101,11 +106,12 @@ _PROBE_OFFSET = 1e-4
 
 
 @functools.lru_cache(maxsize=8)
-def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per body topology (computed once per mesh): each face's neighbours across its edges (F, 3)
-    and the vertices on a hole's border."""
+def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per body topology (computed once per mesh): each face's neighbours across its edges (F, 3),
+    the vertices on a hole's border and each face's ring of faces that share a vertex with it
+    (F, W) int32, padded with F (what `walk_to_closest_faces` reads)."""
     tri = np.frombuffer(faces, dtype=np.int64).reshape(num_faces, 3)
-    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri))
+    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri)), face_rings(tri).astype(np.int32)
 
 
 @dataclass(frozen=True)
@@ -182,9 +188,10 @@ class BodySurface:
         verts = check_verts(verts)
         self.faces = check_faces(faces, verts.shape[1], verts.device)
         self._faces32 = self.faces.to(torch.int32).contiguous()  # what the kernels read
-        edge_nbr, border = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
+        edge_nbr, border, rings = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
         self._edge_nbr = torch.from_numpy(edge_nbr).to(verts.device)
         self._border = torch.from_numpy(border).to(verts.device)
+        self._rings = torch.from_numpy(rings).to(verts.device)
         self._build(verts)
 
     # -- structure ---------------------------------------------------------------------------
@@ -223,6 +230,7 @@ class BodySurface:
         one.sign_method, one.search_threads = self.sign_method, self.search_threads
         one.near_tol, one.winding_accuracy = self.near_tol, self.winding_accuracy
         one.faces, one._faces32, one._edge_nbr, one._border = self.faces, self._faces32, self._edge_nbr, self._border
+        one._rings = self._rings
         one.verts = self.verts[index:index + 1]
         one._verts64 = None
         one._vertex_normals = None if self._vertex_normals is None else self._vertex_normals[index:index + 1]
@@ -371,7 +379,7 @@ class BodySurface:
             self._verts64 = self.verts.detach().reshape(-1, 3).to(torch.float64).contiguous()
         return self._verts64
 
-    def query(self, points: Tensor, *, body_index: Tensor | None = None) -> SurfaceQuery:
+    def query(self, points: Tensor, *, body_index: Tensor | None = None, near: Tensor | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
 
         Args:
@@ -379,18 +387,29 @@ class BodySurface:
                 (N, 3) with ``body_index``, or (N, 3) when the surface holds one body. Same dtype
                 as the body verts.
             body_index: for packed points, which body each point belongs to, shape (N,) int.
+            near: a triangle of each point's body to walk from, leading shape
+                ``points.shape[:-1]`` int (the ``face`` of an earlier query of the points, a small
+                move ago): the closest triangle is then found by the local walk from it
+                (`closest_point.walk_to_closest_faces`), not by the BVH search of the whole
+                surface. None: the BVH search.
 
         Returns:
             A ``SurfaceQuery`` whose fields have the leading shape ``points.shape[:-1]``.
         """
         x, body, lead = packed_points(points, body_index, self.verts)
+        x64 = x.to(torch.float64).contiguous()
         with torch.no_grad():
             x32 = x.detach().to(torch.float32).contiguous()
             body32 = body.to(torch.int32).contiguous()
-            face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
-                                           threads=self.search_threads, reuse=True)[0]
+            if near is None:
+                face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
+                                               threads=self.search_threads, reuse=True)[0]
+            else:
+                face = walk_to_closest_faces(x64.detach(), self._flat_verts64().detach(), body32,
+                                             near.reshape(-1).to(torch.int32).contiguous(), self._faces32,
+                                             self._rings, num_verts=self.num_verts).to(torch.int64)
 
-        on = closest_surface_points(x.to(torch.float64).contiguous(), self._flat_verts64(), body32,
+        on = closest_surface_points(x64, self._flat_verts64(), body32,
                                     face.to(torch.int32).contiguous(), self._faces32, *self._feature_normals(),
                                     near_tol=self.near_tol)
         inside, n, d = on.inside, on.normal, on.signed_distance  # the pseudo-normal's sign

@@ -53,11 +53,11 @@ class ModelConfig:
     factorisation per step; `bench/solver_settings.py` measures both); refactor_first: the first
     steps that factorise at every step, then every refactor_every (X_init's strain relaxes most
     in the first steps, and a factor from X_init holds the coarse moves back after it has;
-    `results/solver_settings.md`). follow_planes: at the steps between body queries, query the
-    body again at the samples near it (within the solver's contact band of their planes),
-    so that the contact planes follow the garment where it touches the body instead of being
-    held for requery_every steps (a lower E_total at T = 3 and at T = 15 on the test split,
-    `results/eval_drift_follow_planes.md`, for more body queries per drape; off by default).
+    `results/solver_settings.md`). follow_planes: at the steps between body queries, find the
+    closest body faces of the samples near it (within the solver's contact band of their planes)
+    again, by a walk from their last ones, so that the contact planes follow the garment where
+    it touches the body instead of being held for requery_every steps (a lower E_total at T = 3
+    and at T = 15 on the test split, `results/eval_drift_follow_planes.md`; off by default).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]

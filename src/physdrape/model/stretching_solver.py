@@ -43,7 +43,7 @@ class StretchingSolver(nn.Module):
     - ``kind="two_level"``: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x, with E_c
       the body-contact penalty of `physics.contact` (the training loss's and the oracle's term:
       vertices and face centroids) on closest-point planes of the body, queried every
-      `requery_every` steps (and with `follow_planes` queried again at the steps between where
+      `requery_every` steps (and with `follow_planes` walked to again at the steps between where
       the garment is near the body) so that gravity cannot pull the garment through the body mid-solve,
       minimised by preconditioned nonlinear conjugate gradients (Polak-Ribière+, restarted where
       the direction does not descend). η is dimensionless (1 = a full preconditioned step). The
@@ -76,10 +76,13 @@ class StretchingSolver(nn.Module):
             positions (the factor is held in between); None: with the body planes.
         refactor_first: the first steps that factorise the coarse space at every step (then every
             `refactor_every`): the garment's stiffness changes most while X_init's strain relaxes.
-        follow_planes: at the steps between body queries, query the body again at the samples
-            within `contact_band` of their held planes (the others, out of the contact's
-            reach at that step, keep theirs): the planes follow the garment where it touches
-            the body at every step, for a fraction of a full query's cost.
+        follow_planes: at the steps between body queries, find the closest body faces again
+            for the samples within `contact_band` of their held planes, by a walk from their
+            planes' faces over the faces around them (`BodySurface.query`'s `near`; the others,
+            out of the contact's reach at that step, keep theirs): the planes follow the garment
+            where it touches the body at every step, for a fraction of a full query's cost; the
+            full query every `requery_every` steps finds what a walk cannot reach (a closer
+            sheet of the body farther along it).
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -276,6 +279,7 @@ class _Relaxation:
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
+        self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
@@ -290,13 +294,15 @@ class _Relaxation:
                 q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
+                self._faces = q.face
             else:
                 near = torch.nonzero(plane_distance(x.detach(), self.cloth.faces, *self.planes) < self.band)[:, 0]
                 if near.numel():
-                    q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, rows=near)
+                    q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, rows=near,
+                                      near=self._faces[near])
                     closest, normal = self.planes[0].clone(), self.planes[1].clone()
                     closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
-                    self.planes = (closest, normal)
+                    self.planes, self._faces = (closest, normal), self._faces.index_put((near,), q.face)
         self._potential.hold(self.planes)
 
     def potential(self, x: Tensor) -> Tensor:

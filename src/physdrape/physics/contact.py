@@ -55,9 +55,10 @@ def sample_index(per_vertex: Tensor, faces: Tensor) -> Tensor:
 
 
 def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None, *,
-                  rows: Tensor | None = None) -> SurfaceQuery:
+                  rows: Tensor | None = None, near: Tensor | None = None) -> SurfaceQuery:
     """Body query of the samples of x (V, 3) [m], each against its vertex's body vert_body (V,)
-    (None: the surface holds one body); rows: only these samples (indices into the V + F).
+    (None: the surface holds one body); rows: only these samples (indices into the V + F); near:
+    a body triangle per queried sample to walk from instead of the BVH search (`BodySurface.query`).
 
     The samples are formed in the body's dtype; the query's fields have leading shape (V + F,),
     or that of rows.
@@ -66,7 +67,7 @@ def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tens
     index = None if vert_body is None else sample_index(vert_body, faces)
     if rows is not None:
         samples, index = samples[rows], None if index is None else index[rows]
-    return bodies.query(samples, body_index=index)
+    return bodies.query(samples, body_index=index, near=near)
 
 
 def contact_depth(distance: Tensor, *, margin: float) -> Tensor:
