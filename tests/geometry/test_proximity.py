@@ -496,6 +496,11 @@ def test_bad_inputs_raise_clear_errors():
         batch.query(torch.zeros(4, 3, dtype=torch.float64), body_index=torch.tensor([0, 1, 2, 0]))
     with pytest.raises(ValueError, match="topology"):
         surface.update(verts[:-1])
+    points = torch.zeros(4, 3, dtype=torch.float64)
+    with pytest.raises(ValueError, match=r"one body face index per point, shape \(4,\)"):
+        surface.query(points, near=torch.zeros(3, dtype=torch.int64))
+    with pytest.raises(ValueError, match=rf"must be in \[0, {len(faces)}\)"):
+        surface.query(points, near=torch.tensor([0, 1, len(faces), 2]))
 
 
 @pytest.mark.anny

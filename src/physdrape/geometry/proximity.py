@@ -397,6 +397,8 @@ class BodySurface:
             A ``SurfaceQuery`` whose fields have the leading shape ``points.shape[:-1]``.
         """
         x, body, lead = packed_points(points, body_index, self.verts)
+        if near is not None:
+            near = self._start_faces(near, lead)
         x64 = x.to(torch.float64).contiguous()
         with torch.no_grad():
             x32 = x.detach().to(torch.float32).contiguous()
@@ -405,9 +407,8 @@ class BodySurface:
                 face = self._bvh.closest_faces(x32, body32, winding_accuracy=self.winding_accuracy,
                                                threads=self.search_threads, reuse=True)[0]
             else:
-                face = walk_to_closest_faces(x64.detach(), self._flat_verts64().detach(), body32,
-                                             near.reshape(-1).to(torch.int32).contiguous(), self._faces32,
-                                             self._rings, num_verts=self.num_verts).to(torch.int64)
+                face = walk_to_closest_faces(x64.detach(), self._flat_verts64().detach(), body32, near,
+                                             self._faces32, self._rings, num_verts=self.num_verts).to(torch.int64)
 
         on = closest_surface_points(x64, self._flat_verts64(), body32,
                                     face.to(torch.int32).contiguous(), self._faces32, *self._feature_normals(),
@@ -441,6 +442,17 @@ class BodySurface:
             bary=bary.reshape(*lead, 3),
             inside=inside.reshape(lead),
         )
+
+    def _start_faces(self, near: Tensor, lead: tuple) -> Tensor:
+        """`query`'s `near` checked (one body face per point) and flattened to int32."""
+        if tuple(near.shape) != tuple(lead) or near.is_floating_point():
+            raise ValueError(f"near must hold one body face index per point, shape {tuple(lead)} int; got "
+                             f"{tuple(near.shape)} {near.dtype}")
+        flat = near.reshape(-1).to(torch.int32).contiguous()
+        if flat.numel() and (int(flat.min()) < 0 or int(flat.max()) >= self.num_faces):
+            raise ValueError(f"near's face indices must be in [0, {self.num_faces}) (got {int(flat.min())} to "
+                             f"{int(flat.max())}): pass the `face` of an earlier query of this surface")
+        return flat
 
     @torch.no_grad()
     def inside(self, points: Tensor, *, body_index: Tensor | None = None) -> Tensor:
