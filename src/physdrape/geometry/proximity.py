@@ -64,7 +64,11 @@ from physdrape.geometry.closest_point import (
     closest_surface_points,
     walk_to_closest_faces,
 )
-from physdrape.geometry.normals import angle_weighted_vertex_normals, triangle_normals
+from physdrape.geometry.normals import (
+    angle_weighted_vertex_normals,
+    triangle_normals,
+    vertex_face_table,
+)
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces, face_rings
 
@@ -111,7 +115,8 @@ def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray
     the vertices on a hole's border and each face's ring of faces that share a vertex with it
     (F, W) int32, padded with F (what `walk_to_closest_faces` reads)."""
     tri = np.frombuffer(faces, dtype=np.int64).reshape(num_faces, 3)
-    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri)), face_rings(tri).astype(np.int32)
+    around = vertex_face_table(torch.from_numpy(tri.copy()), int(tri.max()) + 1 if num_faces else 0).numpy()
+    return edge_neighbour_faces(tri), np.unique(boundary_edges(tri)), face_rings(tri, around).astype(np.int32)
 
 
 @dataclass(frozen=True)

@@ -90,21 +90,15 @@ def edge_neighbour_faces(faces: np.ndarray) -> np.ndarray:
     return face_of.reshape(3, num_faces).T.copy()
 
 
-def face_rings(faces: np.ndarray) -> np.ndarray:
+def face_rings(faces: np.ndarray, vertex_faces: np.ndarray) -> np.ndarray:
     """For each face, the other faces that share a vertex with it, each once, in increasing order,
-    shape (F, W) int64 padded with F (W: the largest ring)."""
+    shape (F, W) int64 padded with F (W: the largest ring); vertex_faces: the faces around each
+    vertex, (V, max degree) padded with F (`geometry.normals.vertex_face_table`)."""
     faces = np.asarray(faces, dtype=np.int64)
     num_faces = faces.shape[0]
     if num_faces == 0:
         return np.zeros((0, 0), dtype=np.int64)
-    corner_face = np.tile(np.arange(num_faces), 3)
-    order = np.argsort(faces.T.reshape(-1), kind="stable")
-    vertex = faces.T.reshape(-1)[order]
-    degree = np.bincount(vertex)
-    start = np.concatenate([[0], np.cumsum(degree)])
-    around = np.full((degree.size, int(degree.max())), num_faces, dtype=np.int64)  # the faces of each vertex
-    around[vertex, np.arange(vertex.size) - start[vertex]] = corner_face[order]
-    ring = np.sort(around[faces].reshape(num_faces, -1), axis=1)
+    ring = np.sort(np.asarray(vertex_faces, dtype=np.int64)[faces].reshape(num_faces, -1), axis=1)
     repeat = np.zeros(ring.shape, dtype=bool)
     repeat[:, 1:] = ring[:, 1:] == ring[:, :-1]
     ring[repeat | (ring == np.arange(num_faces)[:, None])] = num_faces
