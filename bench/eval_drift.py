@@ -1,6 +1,6 @@
 """How far the model's energies on the test instances have moved since `results/eval.json` was written.
 
-    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--follow-planes]
+    .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--[no-]follow-planes]
         [--out results/eval_drift]
 
 Reruns the model rows of the evaluation (GNN only, PhysDrape at T = 3 and T = 15, and the solver
@@ -42,13 +42,21 @@ ROWS = {"gnn_only": (Variant.GNN_ONLY, None, True), "physdrape_t3": (Variant.FUL
         "physics_only": (Variant.FULL, 15, False)}
 
 
+def _planes_note(solver, override: bool | None) -> str:
+    every, follow = solver.planes_schedule()
+    held = "followed at every step" if follow else "held"
+    flag = "" if override is None else f" (`--{'' if override else 'no-'}follow-planes`)"
+    return f", the solver's body planes {held} between body queries every {every} steps{flag}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--eval", default="results/eval.json", help="the evaluation record to compare with")
     parser.add_argument("--checkpoint", default="", help="the model to run (default: the bundled one)")
     parser.add_argument("--out", default="results/eval_drift")
-    parser.add_argument("--follow-planes", action="store_true",
-                        help="run the solver with its body planes followed at every step (`Draper(follow_planes=True)`)")
+    parser.add_argument("--follow-planes", action=argparse.BooleanOptionalAction,
+                        help="the solver's body planes followed at every step, or held between body queries "
+                             "(`Draper(follow_planes=...)`; default: the checkpoint's)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     with open(args.eval) as handle:
@@ -66,9 +74,9 @@ def main() -> None:
     if checkpoint.is_relative_to(Path.cwd()):
         checkpoint = checkpoint.relative_to(Path.cwd())  # a path inside the repository names no machine
     models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
-    if args.follow_planes:
+    if args.follow_planes is not None:
         for model in models.values():
-            model.solver.follow_planes = True
+            model.solver.eval_follow_planes = args.follow_planes
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
     b2g = {row: [] for row in ROWS}
@@ -100,7 +108,7 @@ def main() -> None:
              *source_lines(command, out["provenance"]),
              f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
              f"instances, its references; model `{checkpoint}`"
-             + (", the solver's planes followed at every step (`--follow-planes`)" if args.follow_planes else "")
+             + _planes_note(models[Variant.FULL].solver, args.follow_planes)
              + "; 1 torch thread; load average "
              + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
              "| row | E_total / reference, recorded | now | change | largest change of one instance "

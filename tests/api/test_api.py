@@ -185,14 +185,16 @@ def test_pose_with_arms_through_the_torso_is_refused(draper, anny_body):
 
 
 def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpoint, monkeypatch):
-    """Draper(follow_planes=True) runs the solver with followed planes (a local body query at the
-    steps between full ones); None keeps the checkpoint's setting."""
+    """A drape runs the solver's eval-mode plane schedule: by default (`ModelConfig`'s) a full body
+    query every eval_requery_every steps and a local one at the steps between;
+    Draper(follow_planes=False) holds the planes between full queries instead."""
     import physdrape.model.stretching_solver as solver_module
 
-    default = Draper(tiny_checkpoint, steps=4, body=anny_body)
-    follow = Draper(tiny_checkpoint, steps=4, body=anny_body, follow_planes=True)
-    assert not default.model.solver.follow_planes and not default.model_config.follow_planes
-    assert follow.model.solver.follow_planes and follow.model_config.follow_planes
+    default = Draper(tiny_checkpoint, steps=10, body=anny_body)
+    held = Draper(tiny_checkpoint, steps=10, body=anny_body, follow_planes=False)
+    assert default.model_config.eval_follow_planes and default.model_config.eval_requery_every == 8
+    assert not held.model_config.eval_follow_planes and not held.model.solver.eval_follow_planes
+    assert held.model_config.follow_planes == default.model_config.follow_planes  # training's unchanged
     calls, original = [], solver_module._Relaxation.requery
 
     def requery(self, x, bodies, body_index, **kwargs):
@@ -200,5 +202,8 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
         return original(self, x, bodies, body_index, **kwargs)
 
     monkeypatch.setattr(solver_module._Relaxation, "requery", requery)
-    [res] = follow.drape("default")
-    assert calls == [False, True, True, False] and res.metrics["b2g_percent"] == 0.0
+    [res] = default.drape("default")
+    assert calls == [False, *[True] * 7, False, True] and res.metrics["b2g_percent"] == 0.0
+    calls.clear()
+    [res] = held.drape("default")
+    assert calls == [False, False] and res.metrics["b2g_percent"] == 0.0

@@ -151,6 +151,38 @@ def test_coarse_space_is_refactored_at_the_first_steps_then_every_refactor_every
         _solver(eta=1.0, refactor_every=0)
     with pytest.raises(ValueError, match="refactor_first"):
         _solver(eta=1.0, refactor_first=-1)
+    with pytest.raises(ValueError, match="eval_requery_every"):
+        _solver(eta=1.0, eval_requery_every=0)
+
+
+def test_eval_mode_runs_its_own_plane_schedule(monkeypatch):
+    """requery_every / follow_planes hold in training, eval_requery_every / eval_follow_planes in
+    eval mode (None: as in training); the same module switches with train() / eval()."""
+    import physdrape.model.stretching_solver as module
+
+    batch, x0 = _case(radii=(0.16, 0.185))
+    calls, original = [], module._Relaxation.requery
+
+    def requery(self, x, bodies, body_index, **kwargs):
+        calls.append(kwargs.get("local", False))
+        original(self, x, bodies, body_index, **kwargs)
+
+    monkeypatch.setattr(module._Relaxation, "requery", requery)
+
+    def schedule(solver):
+        calls.clear()
+        with torch.no_grad():
+            solver(x0, batch.cloth, f_hat=None, steps=6, bodies=batch.bodies, body_index=batch.body_index)
+        return list(calls)
+
+    solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=3, eval_requery_every=4, eval_follow_planes=True)
+    assert solver.planes_schedule() == (3, False) and schedule(solver) == [False, False]
+    solver.eval()
+    assert solver.planes_schedule() == (4, True) and schedule(solver) == [False, True, True, True, False, True]
+    solver.train()
+    assert schedule(solver) == [False, False]
+    same = _solver(eta=1.0, requery_every=2, follow_planes=True).eval()
+    assert same.planes_schedule() == (2, True)
 
 
 def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch):

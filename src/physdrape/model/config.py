@@ -56,8 +56,12 @@ class ModelConfig:
     `results/solver_settings.md`). follow_planes: at the steps between body queries, find the
     closest body faces of the samples near it (within the solver's contact band of their planes)
     again, by a walk from their last ones, so that the contact planes follow the garment where
-    it touches the body instead of being held for requery_every steps (a lower E_total at T = 3
-    and at T = 15 on the test split, `results/eval_drift_follow_planes.md`; off by default).
+    it touches the body instead of being held for requery_every steps. requery_every and
+    follow_planes hold in training; eval_requery_every and eval_follow_planes in eval mode
+    (validation, evaluation, `Draper`): the planes' schedule changes no weight, and the network
+    trained on held planes drapes with a lower E_total on followed ones
+    (`results/solver_settings_planes.md`), while training through followed planes teaches it
+    moves the solver then takes back (`docs/training/README.md`).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
@@ -96,6 +100,8 @@ class ModelConfig:
     refactor_every: int = 3
     refactor_first: int = 3
     follow_planes: bool = False
+    eval_requery_every: int = 8
+    eval_follow_planes: bool = True
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05
@@ -121,6 +127,8 @@ class ModelConfig:
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")
+        if self.eval_requery_every < 1:
+            raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.levels < 0:
             raise ValueError(f"ModelConfig.levels must be ≥ 0, got {self.levels}")
 

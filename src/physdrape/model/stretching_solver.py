@@ -83,6 +83,11 @@ class StretchingSolver(nn.Module):
             where it touches the body at every step, for a fraction of a full query's cost; the
             full query every `requery_every` steps finds what a walk cannot reach (a closer
             sheet of the body farther along it).
+        eval_requery_every, eval_follow_planes: requery_every and follow_planes in eval mode
+            (`nn.Module.eval`: validation, evaluation, inference); None: as in training. The
+            planes' schedule changes no weight, so a model can be trained on one schedule and
+            drape with another (training through followed planes teaches the network moves the
+            solver then takes back, `docs/training/README.md`).
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -92,16 +97,19 @@ class StretchingSolver(nn.Module):
     def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
                  gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int | None = None,
                  refactor_first: int = 0, follow_planes: bool = False, max_halvings: int = 6,
-                 coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01) -> None:
+                 coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01,
+                 eval_requery_every: int | None = None, eval_follow_planes: bool | None = None) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
         if max_step < 0:
             raise ValueError(f"max_step must be ≥ 0 [m], got {max_step}")
         refactor_every = requery_every if refactor_every is None else refactor_every
-        if requery_every < 1 or refactor_every < 1 or refactor_first < 0 or max_halvings < 0:
-            raise ValueError(f"need requery_every ≥ 1, refactor_every ≥ 1, refactor_first ≥ 0 and max_halvings ≥ 0, "
-                             f"got {requery_every}, {refactor_every}, {refactor_first}, {max_halvings}")
+        eval_requery_every = requery_every if eval_requery_every is None else eval_requery_every
+        if min(requery_every, eval_requery_every, refactor_every) < 1 or refactor_first < 0 or max_halvings < 0:
+            raise ValueError(f"need requery_every ≥ 1, eval_requery_every ≥ 1, refactor_every ≥ 1, refactor_first ≥ 0 "
+                             f"and max_halvings ≥ 0, got {requery_every}, {eval_requery_every}, {refactor_every}, "
+                             f"{refactor_first}, {max_halvings}")
         if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0:
             raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0 and contact_band ≥ 0 [m], got "
                              f"{coarse_levels}, {coarse_smoothing}, {contact_band}")
@@ -111,6 +119,8 @@ class StretchingSolver(nn.Module):
         self.requery_every, self.refactor_every, self.max_halvings = requery_every, refactor_every, max_halvings
         self.refactor_first = refactor_first
         self.follow_planes = follow_planes
+        self.eval_requery_every = eval_requery_every
+        self.eval_follow_planes = follow_planes if eval_follow_planes is None else eval_follow_planes
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
@@ -146,6 +156,12 @@ class StretchingSolver(nn.Module):
                 trace.append(x)
         return x
 
+    def planes_schedule(self) -> tuple[int, bool]:
+        """(requery_every, follow_planes) of the current mode: training's, or eval mode's."""
+        if self.training:
+            return self.requery_every, self.follow_planes
+        return self.eval_requery_every, self.eval_follow_planes
+
     def _clip(self, move: Tensor) -> Tensor:
         return clip_moves(move, self.max_step)
 
@@ -159,14 +175,15 @@ class StretchingSolver(nn.Module):
         def per_garment(values: Tensor) -> Tensor:
             return cloth.sum_per_garment(values.sum(-1), owner)
 
+        requery_every, follow_planes = self.planes_schedule()
         step = eta
         phi = None
         direction = last_z = last_force = None  # the previous conjugate direction, preconditioned force, force
         for t in range(steps):
-            if bodies is not None and t % self.requery_every == 0:
+            if bodies is not None and t % requery_every == 0:
                 problem.requery(x, bodies, body_index)
                 phi = None
-            elif bodies is not None and self.follow_planes:
+            elif bodies is not None and follow_planes:
                 problem.requery(x, bodies, body_index, local=True)
                 phi = None
             force = problem.force(x)
