@@ -76,7 +76,7 @@ def main() -> None:
     models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
     if args.follow_planes is not None:
         for model in models.values():
-            model.solver.eval_follow_planes = args.follow_planes
+            model.set_eval_planes(args.follow_planes)
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
     b2g = {row: [] for row in ROWS}

@@ -187,13 +187,15 @@ def test_pose_with_arms_through_the_torso_is_refused(draper, anny_body):
 def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpoint, monkeypatch):
     """A drape runs the solver's eval-mode plane schedule: by default (`ModelConfig`'s) a full body
     query every eval_requery_every steps and a local one at the steps between;
-    Draper(follow_planes=False) holds the planes between full queries instead."""
+    Draper(follow_planes=False) holds the planes between full queries every requery_every steps,
+    as in training."""
     import physdrape.model.stretching_solver as solver_module
 
     default = Draper(tiny_checkpoint, steps=10, body=anny_body)
     held = Draper(tiny_checkpoint, steps=10, body=anny_body, follow_planes=False)
     assert default.model_config.eval_follow_planes and default.model_config.eval_requery_every == 8
     assert not held.model_config.eval_follow_planes and not held.model.solver.eval_follow_planes
+    assert held.model_config.eval_requery_every == held.model.solver.eval_requery_every == 3  # training's
     assert held.model_config.follow_planes == default.model_config.follow_planes  # training's unchanged
     calls, original = [], solver_module._Relaxation.requery
 
@@ -206,4 +208,4 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
     assert calls == [False, *[True] * 7, False, True] and res.metrics["b2g_percent"] == 0.0
     calls.clear()
     [res] = held.drape("default")
-    assert calls == [False, False] and res.metrics["b2g_percent"] == 0.0
+    assert calls == [False, False, False, False] and res.metrics["b2g_percent"] == 0.0  # t = 0, 3, 6, 9

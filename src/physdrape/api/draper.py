@@ -16,7 +16,7 @@ import threading
 import time
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -77,8 +77,9 @@ class Draper:
         checkpoint: a checkpoint directory (model.safetensors + config.json) or a run directory
             (its ``latest``); None = the bundled model (`physdrape.checkpoint.bundled_model`).
         steps: solver steps T at inference (paper: 15).
-        follow_planes: the solver's body planes followed at every step, or held between body
-            queries (`ModelConfig.eval_follow_planes`); None: the checkpoint's.
+        follow_planes: the solver's body planes followed at every step between body searches,
+            or held between them as in training (`PhysDrape.set_eval_planes`); None: the
+            checkpoint's (`ModelConfig.eval_follow_planes`).
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
             `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
         smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
@@ -125,8 +126,7 @@ class Draper:
             raise DrapeError(f"cannot load the PhysDrape model: {exc}") from None
         self.model.to(self.device)
         if follow_planes is not None:
-            self.model.config = replace(self.model.config, eval_follow_planes=bool(follow_planes))
-            self.model.solver.eval_follow_planes = bool(follow_planes)
+            self.model.set_eval_planes(follow_planes)
         self.model_config = self.model.config
         self.checkpoint = path
         self.steps = steps

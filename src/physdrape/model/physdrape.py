@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor, nn
@@ -77,6 +77,14 @@ class PhysDrape(nn.Module):
                                        coarse_levels=config.coarse_levels,
                                        coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)
+
+    def set_eval_planes(self, follow: bool) -> None:
+        """The solver's body planes in eval mode followed between body searches (every
+        eval_requery_every steps), or held between them as in training (every requery_every
+        steps); config and solver alike."""
+        every = self.config.eval_requery_every if follow else self.config.requery_every
+        self.config = replace(self.config, eval_follow_planes=bool(follow), eval_requery_every=every)
+        self.solver.eval_follow_planes, self.solver.eval_requery_every = bool(follow), every
 
     def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, GraphLevels]:
         """Raw (un-normalised) node and edge features at X_init, in the network's dtype, and the
