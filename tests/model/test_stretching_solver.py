@@ -155,6 +155,36 @@ def test_coarse_space_is_refactored_at_the_first_steps_then_every_refactor_every
         _solver(eta=1.0, eval_requery_every=0)
 
 
+@pytest.mark.parametrize("kind", ["two_level", "explicit"])
+def test_f_hat_steps_carry_f_hat_through_the_first_steps_only(kind):
+    """f_hat_steps = k: the first k steps run with f̂, the later ones without it. k = 0 is the
+    solve without f̂, k ≥ T the solve with f̂ at every step (None); after step k every
+    two-level step lowers the garment's own Φ (no −f̂·x term)."""
+    batch, x0 = _case(radii=(0.16, 0.185))
+    gen = torch.Generator().manual_seed(2)
+    f_hat = 0.05 * torch.randn(x0.shape, generator=gen, dtype=torch.float64) * batch.cloth.mass[:, None] * 9.81
+    eta = 1.0 if kind == "two_level" else 1e-4
+    bodies = {"bodies": batch.bodies, "body_index": batch.body_index}
+
+    def run(k, steps, f=f_hat, trace=None, **kwargs):
+        solver = _solver(kind, eta=eta, gamma=0.98, max_step=0.01, requery_every=2, f_hat_steps=k)
+        with torch.no_grad():
+            return solver(x0, batch.cloth, f_hat=f, steps=steps, trace=trace, **kwargs)
+
+    assert torch.equal(run(0, 6, **bodies), run(None, 6, f=None, **bodies))
+    assert torch.equal(run(6, 6, **bodies), run(None, 6, **bodies))
+    assert torch.equal(run(3, 3, **bodies), run(None, 3, **bodies))
+    assert (run(3, 6, **bodies) - run(None, 6, **bodies)).abs().max() > 1e-9  # f̂ left out of steps 4 to 6
+    if kind == "two_level":  # without a body Φ is one function: each step after the third lowers it
+        trace = []
+        run(3, 8, trace=trace)
+        zero = torch.zeros_like(x0)
+        for before, after in zip(trace[2:-1], trace[3:]):
+            assert (_potential(after, batch.cloth, zero) <= _potential(before, batch.cloth, zero)).all()
+    with pytest.raises(ValueError, match="f_hat_steps"):
+        _solver(kind, eta=eta, f_hat_steps=-1)
+
+
 def test_eval_mode_runs_its_own_plane_schedule(monkeypatch):
     """requery_every / follow_planes hold in training, eval_requery_every / eval_follow_planes in
     eval mode (None: as in training); the same module switches with train() / eval()."""

@@ -62,6 +62,10 @@ class ModelConfig:
     trained on held planes drapes with a lower E_total on followed ones
     (`results/solver_settings_planes.md`), while training through followed planes teaches it
     moves the solver then takes back (`docs/training/README.md`).
+    f_hat_steps: the solver steps that carry the network's force f̂, its first ones (None: every
+    step, the paper's); the later ones relax the garment's own energy, so a long solve ends at
+    the physics' equilibrium and not at F = −f̂ (the shipped model's 3 = its train_steps: T = 3
+    is unchanged, T = 15 ends lower, `results/eval_drift_f_hat_steps.md`).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
@@ -102,6 +106,7 @@ class ModelConfig:
     follow_planes: bool = False
     eval_requery_every: int = 8
     eval_follow_planes: bool = True
+    f_hat_steps: int | None = 3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05
@@ -127,6 +132,9 @@ class ModelConfig:
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")
+        if self.f_hat_steps is not None and (isinstance(self.f_hat_steps, bool) or not isinstance(self.f_hat_steps, int)
+                                             or self.f_hat_steps < 0):
+            raise ValueError(f"ModelConfig.f_hat_steps must be an integer ≥ 0 (null: every solver step), got {self.f_hat_steps!r}")
         if self.eval_requery_every < 1:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.levels < 0:

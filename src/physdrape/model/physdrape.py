@@ -73,7 +73,7 @@ class PhysDrape(nn.Module):
                                        requery_every=config.requery_every, refactor_every=config.refactor_every,
                                        refactor_first=config.refactor_first, follow_planes=config.follow_planes,
                                        eval_requery_every=config.eval_requery_every,
-                                       eval_follow_planes=config.eval_follow_planes,
+                                       eval_follow_planes=config.eval_follow_planes, f_hat_steps=config.f_hat_steps,
                                        coarse_levels=config.coarse_levels,
                                        coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)

@@ -83,6 +83,9 @@ class StretchingSolver(nn.Module):
             where it touches the body at every step, for a fraction of a full query's cost; the
             full query every `requery_every` steps finds what a walk cannot reach (a closer
             sheet of the body farther along it).
+        f_hat_steps: the first steps that carry f̂ (None: every step). The later steps relax the
+            garment's own energy, so that a long solve ends at the physics' equilibrium and not
+            at F = −f̂: the network's force estimate guides the steps it was trained through.
         eval_requery_every, eval_follow_planes: requery_every and follow_planes in eval mode
             (`nn.Module.eval`: validation, evaluation, inference); None: as in training. The
             planes' schedule changes no weight, so a model can be trained on one schedule and
@@ -98,7 +101,8 @@ class StretchingSolver(nn.Module):
                  gamma: float = 0.9, max_step: float = 5e-3, requery_every: int = 5, refactor_every: int | None = None,
                  refactor_first: int = 0, follow_planes: bool = False, max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01,
-                 eval_requery_every: int | None = None, eval_follow_planes: bool | None = None) -> None:
+                 eval_requery_every: int | None = None, eval_follow_planes: bool | None = None,
+                 f_hat_steps: int | None = None) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -110,6 +114,8 @@ class StretchingSolver(nn.Module):
             raise ValueError(f"need requery_every ≥ 1, eval_requery_every ≥ 1, refactor_every ≥ 1, refactor_first ≥ 0 "
                              f"and max_halvings ≥ 0, got {requery_every}, {eval_requery_every}, {refactor_every}, "
                              f"{refactor_first}, {max_halvings}")
+        if f_hat_steps is not None and f_hat_steps < 0:
+            raise ValueError(f"f_hat_steps must be ≥ 0 (None: every step), got {f_hat_steps}")
         if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0:
             raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0 and contact_band ≥ 0 [m], got "
                              f"{coarse_levels}, {coarse_smoothing}, {contact_band}")
@@ -121,6 +127,7 @@ class StretchingSolver(nn.Module):
         self.follow_planes = follow_planes
         self.eval_requery_every = eval_requery_every
         self.eval_follow_planes = follow_planes if eval_follow_planes is None else eval_follow_planes
+        self.f_hat_steps = f_hat_steps
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
@@ -146,9 +153,9 @@ class StretchingSolver(nn.Module):
             return self._two_level(x, cloth, f_hat, steps, trace, bodies, body_index)
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
         step = eta
-        for _ in range(steps):
+        for t in range(steps):
             force = internal_forces(x, cloth)
-            if f_hat is not None:
+            if f_hat is not None and self._carries_f_hat(t):
                 force = force + f_hat
             x = x + self._clip(step * force)
             step = step * gamma
@@ -161,6 +168,9 @@ class StretchingSolver(nn.Module):
         if self.training:
             return self.requery_every, self.follow_planes
         return self.eval_requery_every, self.eval_follow_planes
+
+    def _carries_f_hat(self, t: int) -> bool:
+        return self.f_hat_steps is None or t < self.f_hat_steps
 
     def _clip(self, move: Tensor) -> Tensor:
         return clip_moves(move, self.max_step)
@@ -180,6 +190,8 @@ class StretchingSolver(nn.Module):
         phi = None
         direction = last_z = last_force = None  # the previous conjugate direction, preconditioned force, force
         for t in range(steps):
+            if f_hat is not None and t == self.f_hat_steps:
+                problem, phi = problem.without_f_hat(), None  # the conjugation goes on: PR+ restarts if needed
             if bodies is not None and t % requery_every == 0:
                 problem.requery(x, bodies, body_index)
                 phi = None
@@ -298,6 +310,14 @@ class _Relaxation:
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
+
+    def without_f_hat(self) -> _Relaxation:
+        """The same problem without the −f̂·x term, on the same held planes."""
+        other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band)
+        other.planes, other._faces = self.planes, self._faces
+        if self.planes is not None:
+            other._potential.hold(self.planes)
+        return other
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
         """Query the body at the samples of x and hold the planes.
