@@ -3,6 +3,8 @@
 import json
 from importlib import resources
 
+import pytest
+
 from physdrape.config_io import from_mapping
 from physdrape.model import ModelConfig
 from physdrape.model.stretching_solver import SolverKind
@@ -24,3 +26,13 @@ def test_the_shipped_models_config_loads_strictly():
 def test_defaults_are_the_shipped_models_physics_settings():
     shipped, default = from_mapping(ModelConfig, _shipped()), ModelConfig()
     assert {name: getattr(default, name) for name in PHYSICS} == {name: getattr(shipped, name) for name in PHYSICS}
+
+
+def test_solver_schedule_fields_are_checked():
+    """f_hat_steps: an integer ≥ 0 or null (every step); eval_requery_every ≥ 1."""
+    for bad in (-1, "3", True, 2.5):
+        with pytest.raises(ValueError, match="f_hat_steps"):
+            ModelConfig(f_hat_steps=bad)
+    with pytest.raises(ValueError, match="eval_requery_every"):
+        ModelConfig(eval_requery_every=0)
+    assert ModelConfig(f_hat_steps=None).f_hat_steps is None and ModelConfig().f_hat_steps == ModelConfig().train_steps

@@ -132,9 +132,9 @@ class ModelConfig:
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")
-        if self.f_hat_steps is not None and (isinstance(self.f_hat_steps, bool) or not isinstance(self.f_hat_steps, int)
-                                             or self.f_hat_steps < 0):
-            raise ValueError(f"ModelConfig.f_hat_steps must be an integer ≥ 0 (null: every solver step), got {self.f_hat_steps!r}")
+        k = self.f_hat_steps
+        if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
+            raise ValueError(f"ModelConfig.f_hat_steps must be an integer ≥ 0 (null: every solver step), got {k!r}")
         if self.eval_requery_every < 1:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.levels < 0:

@@ -36,7 +36,8 @@ class StretchingSolver(nn.Module):
 
     f̂ is the GNN's estimate of the forces the explicit model lacks (body support, contact,
     unresolved stress; DESIGN.md Sec. 3.5), held fixed over the first `f_hat_steps` steps (all T
-    by default), so those steps relax toward F = −f̂ and the later ones toward F = 0. η > 0 is exp-parametrised, γ ∈ (0, 1) sigmoid-parametrised.
+    by default), so those steps relax toward F = −f̂ and the later ones toward F = 0. η > 0 is
+    exp-parametrised, γ ∈ (0, 1) sigmoid-parametrised.
 
     - ``kind="explicit"`` (the paper's Eq. 10, the baseline): C = I, F = F_int, η a compliance
       in m/N.
