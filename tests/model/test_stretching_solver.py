@@ -197,7 +197,7 @@ def test_eval_mode_runs_its_own_plane_schedule(monkeypatch):
 
     def requery(self, x, bodies, body_index, **kwargs):
         calls.append(kwargs.get("local", False))
-        original(self, x, bodies, body_index, **kwargs)
+        return original(self, x, bodies, body_index, **kwargs)
 
     monkeypatch.setattr(module._Relaxation, "requery", requery)
 
@@ -228,8 +228,9 @@ def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch)
 
     def requery(self, x, bodies, body_index, **kwargs):
         before = self.planes
-        original(self, x, bodies, body_index, **kwargs)
+        change = original(self, x, bodies, body_index, **kwargs)
         held.append((kwargs.get("local", False), x.detach().clone(), before, self.planes))
+        return change
 
     monkeypatch.setattr(module._Relaxation, "requery", requery)
     band = 0.01
@@ -255,3 +256,24 @@ def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch)
     zero = torch.zeros_like(x0)
     for (*_, planes), before, after in zip(held, [x0, *trace], trace):
         assert (_potential(after, batch.cloth, zero, planes) <= _potential(before, batch.cloth, zero, planes)).all()
+
+
+def test_followed_planes_change_phi_by_the_followed_samples_penalties():
+    """A local requery returns the change of Φ at x that its new planes make (the solver adds it
+    to the Φ it held instead of evaluating Φ anew); a full requery returns None."""
+    batch, x0 = _case(radii=(0.16, 0.185))
+    f_hat = torch.zeros_like(x0)
+    problem = _solver(eta=1.0)._relaxation(batch.cloth, None)
+    assert problem.requery(x0, batch.bodies, batch.body_index) is None
+    gen = torch.Generator().manual_seed(2)
+    changes = []
+    for scale in (3e-3, 6e-3):  # small moves, then the samples slide farther over the body
+        x = x0 + scale * torch.randn(x0.shape, generator=gen, dtype=torch.float64)
+        before = problem.potential(x)
+        torch.testing.assert_close(before, _potential(x, batch.cloth, f_hat, problem.planes), rtol=1e-12, atol=0)
+        change = problem.requery(x, batch.bodies, batch.body_index, local=True)
+        torch.testing.assert_close(before + change, _potential(x, batch.cloth, f_hat, problem.planes),
+                                   rtol=1e-12, atol=1e-15)
+        torch.testing.assert_close(before + change, problem.potential(x), rtol=1e-12, atol=1e-15)
+        changes.append(change)
+    assert all(bool((c != 0).any()) for c in changes)  # the followed planes moved some penalties

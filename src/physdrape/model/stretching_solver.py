@@ -14,6 +14,8 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
+    contact_energy,
+    garment_energy,
     plane_contact_blocks,
     plane_contact_forces,
     plane_distance,
@@ -197,8 +199,8 @@ class StretchingSolver(nn.Module):
                 problem.requery(x, bodies, body_index)
                 phi = None
             elif bodies is not None and follow_planes:
-                problem.requery(x, bodies, body_index, local=True)
-                phi = None
+                change = problem.requery(x, bodies, body_index, local=True)
+                phi = None if phi is None else phi + change  # Φ at x on the followed planes, without a new evaluation
             force = problem.force(x)
             contact = problem.contact_blocks(x)
             if t % self.refactor_every == 0 or t < self.refactor_first:
@@ -320,12 +322,15 @@ class _Relaxation:
             other._potential.hold(self.planes)
         return other
 
-    def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *, local: bool = False) -> None:
+    def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *,
+                local: bool = False) -> Tensor | None:
         """Query the body at the samples of x and hold the planes.
 
         local: only the samples within the contact band of their held planes; the others keep
         theirs (no contact term or block reaches them at this step: they are more than a band
-        away from the body).
+        away from the body). Returns the change of Φ at x per garment (G,) [J], float64, that
+        the new planes make (only the followed samples' penalties change), or None after a full
+        query (every plane may have changed: Φ is evaluated anew).
         """
         with torch.no_grad():
             if not local or self.planes is None:
@@ -333,15 +338,24 @@ class _Relaxation:
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
                 self._faces = q.face
+                change = None
             else:
-                near = torch.nonzero(plane_distance(x.detach(), self.cloth.faces, *self.planes) < self.band)[:, 0]
+                x64 = x.detach().to(torch.float64)
+                before = plane_distance(x64, self.cloth.faces, *self.planes)
+                near = torch.nonzero(before < self.band)[:, 0]
+                penalty = torch.zeros_like(before)
                 if near.numel():
                     q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, rows=near,
                                       near=self._faces[near])
                     closest, normal = self.planes[0].clone(), self.planes[1].clone()
                     closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
                     self.planes, self._faces = (closest, normal), self._faces.index_put((near,), q.face)
+                    after = plane_distance(x64, self.cloth.faces, *self.planes)
+                    energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
+                    penalty[near] = energy(after[near]) - energy(before[near])
+                change = garment_energy(penalty, self.cloth)
         self._potential.hold(self.planes)
+        return change
 
     def potential(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64 (`physics.potential`: one launch), on the held planes."""
