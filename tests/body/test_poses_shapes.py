@@ -49,6 +49,25 @@ def test_arm_through_torso_is_detected(anny_body, device):
 
 
 @pytest.mark.anny
+def test_arm_check_refits_its_torso_surface_and_counts_as_a_new_one(anny_body):
+    """The check keeps its torso surface per batch size and refits it to each pose: the counts
+    of a run of poses, penetrating and not, are those of a surface built for each pose."""
+    s = anny_body.default_shape(1, dtype=torch.float64)
+    poses = [anny_body.rest_pose(2, dtype=torch.float64) for _ in range(3)]
+    _set(poses[0][:1], anny_body, "upperarm01.L", ez=-45)
+    _set(poses[2][1:], anny_body, "upperarm01.L", ez=-50)
+    poses[1] = sample_poses(anny_body, 2, seed=1, dtype=torch.float64)
+    refitted = [arm_torso_penetration(anny_body(s, p), anny_body).tolist() for p in poses]
+    assert (2, "cpu") in anny_body.__dict__["_torso_surfaces"]
+    fresh = []
+    for p in poses:
+        anny_body.__dict__.pop("_torso_surfaces")
+        fresh.append(arm_torso_penetration(anny_body(s, p), anny_body).tolist())
+    assert refitted == fresh
+    assert refitted[0][0] > 10 and refitted[2][1] > 10 and refitted[1] == [0, 0]
+
+
+@pytest.mark.anny
 def test_pose_sampler_reproducible_and_penetration_free(anny_body):
     a = sample_poses(anny_body, 4, seed=3)
     b = sample_poses(anny_body, 4, seed=3)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -178,16 +179,36 @@ def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4,
             f"body_state has {body_state.verts.shape[1]} vertices but the {body.rig!r} Anny body "
             f"has {body.num_verts}; pass the body that produced the state"
         )
-    from physdrape.geometry.proximity import BodySurface
-
     query, torso = _arm_sets(body)
     with torch.no_grad():
         verts = body_state.verts.to(device=device, dtype=torch.float32)
+        with _TORSO_LOCK:
+            surface = _torso_surface(body, torso, verts)
+            inside = surface.inside(verts[:, query[::stride].to(verts.device)])
+    return inside.sum(dim=1).cpu()
+
+
+#: Guards the torso surfaces `_torso_surface` keeps (poses checked on parallel threads share them).
+_TORSO_LOCK = threading.Lock()
+
+
+def _torso_surface(body, torso: Tensor, verts: Tensor):
+    """The non-arm surface of `body` at posed vertices (B, Vb, 3) float32: built once per batch
+    size and device, then refitted to each new pose (a refit costs a fraction of a BVH build, and
+    the check's few hundred points barely feel a tree built for another pose). Call under
+    `_TORSO_LOCK`."""
+    from physdrape.geometry.proximity import BodySurface
+
+    cache = body.__dict__.setdefault("_torso_surfaces", {})
+    key = (verts.shape[0], str(verts.device))
+    surface = cache.get(key)
+    if surface is None:
         # Accuracy 2 (Warp's default): on this open surface 1.0 misses points just above
         # w = 0.5 that the exact (brute-force) winding number counts; 2.0 agrees with it.
-        surface = BodySurface(verts, body.faces[torso].to(verts.device), winding_accuracy=2.0)
-        inside = surface.inside(verts[:, query[::stride].to(verts.device)])
-    return inside.sum(dim=1).cpu()
+        surface = cache[key] = BodySurface(verts.clone(), body.faces[torso].to(verts.device), winding_accuracy=2.0)
+    else:
+        surface.update(verts.clone())
+    return surface
 
 
 # ----------------------------------------------------------------------------------------------
