@@ -15,6 +15,7 @@ from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
     contact_energy,
+    contact_samples,
     garment_energy,
     plane_contact_blocks,
     plane_contact_forces,
@@ -350,9 +351,10 @@ class _Relaxation:
                     closest, normal = self.planes[0].clone(), self.planes[1].clone()
                     closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
                     self.planes, self._faces = (closest, normal), self._faces.index_put((near,), q.face)
-                    after = plane_distance(x64, self.cloth.faces, *self.planes)
+                    # the followed samples' distances to their new planes, as `plane_distance` forms them
+                    after = ((contact_samples(x64, self.cloth.faces)[near] - closest[near]) * normal[near]).sum(-1)
                     energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
-                    penalty[near] = energy(after[near]) - energy(before[near])
+                    penalty[near] = energy(after) - energy(before[near])
                 change = garment_energy(penalty, self.cloth)
         self._potential.hold(self.planes)
         return change
