@@ -29,10 +29,13 @@ def test_defaults_are_the_shipped_models_physics_settings():
 
 
 def test_solver_schedule_fields_are_checked():
-    """f_hat_steps: an integer ≥ 0 or null (every step); eval_requery_every ≥ 1."""
+    """f_hat_steps: an integer ≥ 0 or null (every step); eval_requery_every ≥ 1; follow_min_move ≥ 0 [m]."""
     for bad in (-1, "3", True, 2.5):
         with pytest.raises(ValueError, match="f_hat_steps"):
             ModelConfig(f_hat_steps=bad)
     with pytest.raises(ValueError, match="eval_requery_every"):
         ModelConfig(eval_requery_every=0)
+    for bad in (-1e-3, float("nan")):
+        with pytest.raises(ValueError, match="follow_min_move"):
+            ModelConfig(follow_min_move=bad)
     assert ModelConfig(f_hat_steps=None).f_hat_steps is None and ModelConfig().f_hat_steps == ModelConfig().train_steps

@@ -277,3 +277,41 @@ def test_followed_planes_change_phi_by_the_followed_samples_penalties():
         torch.testing.assert_close(before + change, problem.potential(x), rtol=1e-12, atol=1e-15)
         changes.append(change)
     assert all(bool((c != 0).any()) for c in changes)  # the followed planes moved some penalties
+
+
+def test_followed_planes_are_found_again_only_for_samples_that_moved_min_move():
+    """With follow_min_move, a local requery finds again the planes of the samples within the
+    band of their planes that moved more than follow_min_move since their planes were found (at
+    the closest-point planes of that step); the others keep theirs."""
+    import physdrape.model.stretching_solver as module
+
+    batch, x0 = _case(radii=(0.16, 0.185))
+    band, min_move = 0.01, 1.5e-3
+    solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=6, follow_planes=True, contact_band=band,
+                     follow_min_move=min_move)
+    problem = solver._relaxation(batch.cloth, None)
+    problem.requery(x0, batch.bodies, batch.body_index)
+    found_at = _samples(x0, batch.cloth)
+    gen = torch.Generator().manual_seed(3)
+    refound = kept_near = 0
+    x = x0
+    for _ in range(4):  # moves of about a millimetre: some samples pass min_move, some not yet
+        x = x + 1e-3 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
+        before = problem.planes
+        phi = problem.potential(x)
+        change = problem.requery(x, batch.bodies, batch.body_index, local=True)
+        samples = _samples(x, batch.cloth)
+        near = ((samples - before[0]) * before[1]).sum(-1) < band
+        moved = (samples - found_at).norm(dim=-1) > min_move
+        again = near & moved
+        closest, normal = problem.planes
+        assert torch.equal(closest[~again], before[0][~again]) and torch.equal(normal[~again], before[1][~again])
+        want_closest, _ = _planes(batch, x)
+        torch.testing.assert_close(closest[again], want_closest[again], atol=1e-5, rtol=0)
+        torch.testing.assert_close(phi + change, problem.potential(x), rtol=1e-12, atol=1e-15)
+        found_at = torch.where(again[:, None], samples, found_at)
+        refound, kept_near = refound + int(again.sum()), kept_near + int((near & ~moved).sum())
+    assert refound > 100 and kept_near > 100  # both kinds occur
+    assert module.StretchingSolver(kind="two_level", eta=1.0, margin=2e-3, contact_stiffness=1.0).follow_min_move == 0.0
+    with pytest.raises(ValueError, match="follow_min_move"):
+        _solver(eta=1.0, follow_min_move=-1.0)

@@ -61,7 +61,9 @@ class ModelConfig:
     (validation, evaluation, `Draper`): the planes' schedule changes no weight, and the network
     trained on held planes drapes with a lower E_total on followed ones
     (`results/solver_settings_planes.md`), while training through followed planes teaches it
-    moves the solver then takes back (`docs/training/README.md`).
+    moves the solver then takes back (`docs/training/README.md`). follow_min_move: followed planes
+    are found again only for the samples that moved more than this [m] since their planes were
+    found (0: every near sample at every step; see `StretchingSolver`).
     f_hat_steps: the solver steps that carry the network's force f̂, its first ones (None: every
     step, the paper's); the later ones relax the garment's own energy, so a long solve ends at
     the physics' equilibrium and not at F = −f̂ (the shipped model's 3 = its train_steps: T = 3
@@ -107,6 +109,7 @@ class ModelConfig:
     eval_requery_every: int = 8
     eval_follow_planes: bool = True
     f_hat_steps: int | None = 3
+    follow_min_move: float = 1e-3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05
@@ -135,6 +138,9 @@ class ModelConfig:
         k = self.f_hat_steps
         if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
             raise ValueError(f"ModelConfig.f_hat_steps must be an integer ≥ 0 (null: every solver step), got {k!r}")
+        if not self.follow_min_move >= 0:
+            raise ValueError(f"ModelConfig.follow_min_move must be ≥ 0 [m] (0: every followed sample at every step), "
+                             f"got {self.follow_min_move}")
         if self.eval_requery_every < 1:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.levels < 0:

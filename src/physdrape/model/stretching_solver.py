@@ -87,6 +87,11 @@ class StretchingSolver(nn.Module):
             where it touches the body at every step, for a fraction of a full query's cost; the
             full query every `requery_every` steps finds what a walk cannot reach (a closer
             sheet of the body farther along it).
+        follow_min_move: with follow_planes, a sample's plane is found again only once the sample
+            has moved more than this [m] since it was last found (0: at every step). A plane found
+            a millimetre ago misses the body's surface there by about the move squared over the
+            body's radius of curvature, micrometres, and late steps move most samples by less:
+            they keep their planes, and the walks are spent where the garment still slides.
         f_hat_steps: the first steps that carry f̂ (None: every step). The later steps relax the
             garment's own energy, so that a long solve ends at the physics' equilibrium and not
             at F = −f̂: the network's force estimate guides the steps it was trained through.
@@ -106,7 +111,7 @@ class StretchingSolver(nn.Module):
                  refactor_first: int = 0, follow_planes: bool = False, max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01,
                  eval_requery_every: int | None = None, eval_follow_planes: bool | None = None,
-                 f_hat_steps: int | None = None) -> None:
+                 f_hat_steps: int | None = None, follow_min_move: float = 0.0) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -120,9 +125,9 @@ class StretchingSolver(nn.Module):
                              f"{refactor_first}, {max_halvings}")
         if f_hat_steps is not None and f_hat_steps < 0:
             raise ValueError(f"f_hat_steps must be ≥ 0 (None: every step), got {f_hat_steps}")
-        if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0:
-            raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0 and contact_band ≥ 0 [m], got "
-                             f"{coarse_levels}, {coarse_smoothing}, {contact_band}")
+        if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0 or follow_min_move < 0:
+            raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0, contact_band ≥ 0 [m] and follow_min_move "
+                             f"≥ 0 [m], got {coarse_levels}, {coarse_smoothing}, {contact_band}, {follow_min_move}")
         self.kind = SolverKind(kind)
         self.max_step = max_step
         self.margin, self.contact_stiffness = margin, contact_stiffness
@@ -134,6 +139,7 @@ class StretchingSolver(nn.Module):
         self.f_hat_steps = f_hat_steps
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
+        self.follow_min_move = follow_min_move
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
         self.gamma_logit = nn.Parameter(torch.tensor(math.log(gamma / (1.0 - gamma))))
 
@@ -249,7 +255,8 @@ class StretchingSolver(nn.Module):
         return partial(_precondition, self._stiffness_inverse(x, cloth, contact), coarse)
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
-        return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band)
+        return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band,
+                           min_move=self.follow_min_move)
 
     @torch.no_grad()
     def _stiffness_inverse(self, x: Tensor, cloth: Cloth, contact: Tensor | None) -> Tensor:
@@ -306,19 +313,24 @@ class _Relaxation:
     The contact's Gauss-Newton blocks 6 k_c ReLU(ε − d) n nᵀ vanish at d ≥ ε, so a quadratic
     model of Φ does not see the body until the garment is in its margin; samples closer to their
     plane than `band` [m] get the blocks of depth ε instead (a preconditioner only: the line
-    search still descends Φ).
+    search still descends Φ). A local requery finds again the planes of the samples within `band`
+    of theirs that moved more than `min_move` [m] since their planes were found.
     """
 
-    def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float) -> None:
+    def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float,
+                 min_move: float = 0.0) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
+        self.min_move = min_move
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
+        self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
 
     def without_f_hat(self) -> _Relaxation:
         """The same problem without the −f̂·x term, on the same held planes."""
-        other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band)
-        other.planes, other._faces = self.planes, self._faces
+        other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band,
+                            min_move=self.min_move)
+        other.planes, other._faces, other._found_at = self.planes, self._faces, self._found_at
         if self.planes is not None:
             other._potential.hold(self.planes)
         return other
@@ -327,9 +339,10 @@ class _Relaxation:
                 local: bool = False) -> Tensor | None:
         """Query the body at the samples of x and hold the planes.
 
-        local: only the samples within the contact band of their held planes; the others keep
-        theirs (no contact term or block reaches them at this step: they are more than a band
-        away from the body). Returns the change of Φ at x per garment (G,) [J], float64, that
+        local: only the samples within the contact band of their held planes (and, with
+        `min_move`, moved that far since their planes were found); the others keep theirs (no
+        contact term or block reaches them at this step: they are more than a band away from the
+        body; or their planes are a fraction of a millimetre old). Returns the change of Φ at x per garment (G,) [J], float64, that
         the new planes make (only the followed samples' penalties change), or None after a full
         query (every plane may have changed: Φ is evaluated anew).
         """
@@ -339,11 +352,17 @@ class _Relaxation:
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
                 self._faces = q.face
+                if self.min_move > 0:
+                    self._found_at = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
                 change = None
             else:
                 x64 = x.detach().to(torch.float64)
                 before = plane_distance(x64, self.cloth.faces, *self.planes)
-                near = torch.nonzero(before < self.band)[:, 0]
+                samples = contact_samples(x64, self.cloth.faces)
+                near = before < self.band
+                if self._found_at is not None:
+                    near &= (samples - self._found_at).norm(dim=-1) > self.min_move
+                near = torch.nonzero(near)[:, 0]
                 penalty = torch.zeros_like(before)
                 if near.numel():
                     q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, rows=near,
@@ -351,8 +370,10 @@ class _Relaxation:
                     closest, normal = self.planes[0].clone(), self.planes[1].clone()
                     closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
                     self.planes, self._faces = (closest, normal), self._faces.index_put((near,), q.face)
+                    if self._found_at is not None:
+                        self._found_at = self._found_at.index_put((near,), samples[near])
                     # the followed samples' distances to their new planes, as `plane_distance` forms them
-                    after = ((contact_samples(x64, self.cloth.faces)[near] - closest[near]) * normal[near]).sum(-1)
+                    after = ((samples[near] - closest[near]) * normal[near]).sum(-1)
                     energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
                     penalty[near] = energy(after) - energy(before[near])
                 change = garment_energy(penalty, self.cloth)
