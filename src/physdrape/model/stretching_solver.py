@@ -19,7 +19,6 @@ from physdrape.physics.contact import (
     garment_energy,
     plane_contact_blocks,
     plane_contact_forces,
-    plane_distance,
     query_samples,
 )
 from physdrape.physics.forces import extra_blocks, internal_forces
@@ -356,9 +355,9 @@ class _Relaxation:
                     self._found_at = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
                 change = None
             else:
-                x64 = x.detach().to(torch.float64)
-                before = plane_distance(x64, self.cloth.faces, *self.planes)
-                samples = contact_samples(x64, self.cloth.faces)
+                samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
+                # each sample's distance to its held plane, as `plane_distance` forms it
+                before = ((samples - self.planes[0]) * self.planes[1]).sum(-1)
                 near = before < self.band
                 if self._found_at is not None:
                     near &= (samples - self._found_at).norm(dim=-1) > self.min_move
