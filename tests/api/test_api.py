@@ -73,6 +73,9 @@ def test_pose_specs(draper, anny_body):
     assert rest.shape == (1, anny_body.num_joints, 3)
     assert len(draper.poses(np.zeros((2, anny_body.num_joints, 3)))) == 2
     assert draper.poses("random:3")[0].label == "random:3"
+    default = draper.poses()  # the default preset, posed once and then reused like a named one
+    assert default[0].label == "relaxed" and torch.equal(default[0].pose, draper.poses("relaxed")[0].pose)
+    assert draper.poses(None)[0].pose is default[0].pose
 
 
 @pytest.mark.parametrize(

@@ -225,14 +225,14 @@ class Draper:
 
     def poses(self, spec=None) -> list[BodyPose]:
         """Poses from None (the default preset), a preset name, "random:SEED", an array (J, 3) or
-        (N, J, 3) axis-angle [rad] on the "anny" rig, or a `Motion` (BVH frames).
-
-        On an SMPL Draper: None / "rest" (zero θ, the T-pose), θ as (J, 3), (3J,), (N, J, 3) or
-        (N, 3J) axis-angles [rad], or a `Motion` of an AMASS .npz."""
+        (N, J, 3) axis-angle [rad] on the "anny" rig, or a `Motion` (BVH frames). On an SMPL
+        Draper: None / "rest" (zero θ, the T-pose), θ as (J, 3), (3J,), (N, J, 3) or (N, 3J)
+        axis-angles [rad], or a `Motion` of an AMASS .npz."""
         if isinstance(spec, Motion):
             return sequences.tag_frames(spec, specs.motion_poses(spec, self.body, smpl=self.smpl is not None))
         if self.smpl is not None:
             return specs.smpl_poses(spec, self.body("smpl"))
+        spec = specs.DEFAULT_POSE if spec is None else spec
         if isinstance(spec, str):  # a preset or a seeded draw (the sampler poses and checks bodies): once
             if spec not in self._named_poses:
                 self._named_poses[spec] = specs.anny_poses(spec, self.body)
