@@ -120,7 +120,8 @@ def test_threads_split_by_garment_same_totals():
 
 
 def test_new_positions_and_new_planes():
-    """The recorded launch reads each call's positions and, after `hold`, the new planes."""
+    """The recorded launch reads each call's positions and, after `hold`, the new planes (copied:
+    the caller may change its tensors afterwards)."""
     _, cloth, x, planes, external = _case()
     potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN)
     potential.hold(planes)
@@ -133,6 +134,12 @@ def test_new_positions_and_new_planes():
     assert bool((potential(x) > first).all())
     potential.hold(None)
     torch.testing.assert_close(potential(x), _composed(x, cloth, None, external), rtol=1e-12, atol=1e-15)
+    potential.hold(planes)  # held again after none: the contact is back
+    torch.testing.assert_close(potential(x), first, rtol=1e-12, atol=1e-15)
+    held = planes[0].clone()
+    potential.hold((held, planes[1]))
+    held += 5e-3 * planes[1]  # the caller's tensor changes after hold: the potential holds its own copy
+    torch.testing.assert_close(potential(x), first, rtol=1e-12, atol=1e-15)
 
 
 def test_bad_shapes_are_refused():

@@ -113,15 +113,23 @@ class GarmentPotential:
 
     def hold(self, planes: tuple[Tensor, Tensor] | None) -> None:
         """Evaluate the contact on these planes from now on: the samples' closest points and unit
-        normals (V + F, 3) each (`physics.contact`), or None (no contact term)."""
-        if planes is not None:
-            samples = self.cloth.num_verts + self.cloth.faces.shape[0]
-            if tuple(planes[0].shape) != (samples, 3) or tuple(planes[1].shape) != (samples, 3):
-                raise ValueError(f"the planes must have shape ({samples}, 3) (the V + F samples), "
-                                 f"got {tuple(planes[0].shape)} and {tuple(planes[1].shape)}")
-            planes = tuple(p.detach().to(torch.float64).contiguous() for p in planes)
-        self._planes = planes
-        self._launches = {}
+        normals (V + F, 3) each (`physics.contact`), or None (no contact term). The planes are
+        copied into buffers of this potential's own, so that a solver moving them at every step
+        replays the same recorded launch."""
+        if planes is None:
+            if self._planes is not None:
+                self._launches = {}
+            self._planes = None
+            return
+        samples = self.cloth.num_verts + self.cloth.faces.shape[0]
+        if tuple(planes[0].shape) != (samples, 3) or tuple(planes[1].shape) != (samples, 3):
+            raise ValueError(f"the planes must have shape ({samples}, 3) (the V + F samples), "
+                             f"got {tuple(planes[0].shape)} and {tuple(planes[1].shape)}")
+        if self._planes is None:  # the first planes: the buffers, and the launches recorded on them
+            self._planes = tuple(torch.empty(samples, 3, dtype=torch.float64, device=self._x.device) for _ in range(2))
+            self._launches = {}
+        for held, plane in zip(self._planes, planes):
+            held.copy_(plane.detach())
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64, at positions x (V, 3) [m]; not differentiated."""
