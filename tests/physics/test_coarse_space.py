@@ -11,7 +11,8 @@ from physdrape.geometry import topology
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet, open_cylinder
 from physdrape.physics import Cloth
-from physdrape.physics.coarse_space import REGULARIZATION, CoarseSpace
+from physdrape.physics.coarse_factor import REGULARIZATION
+from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.forces import extra_blocks, links
 from physdrape.physics.layers import LayerOrder
 from physdrape.physics.stitches import Stitches
@@ -100,6 +101,10 @@ def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment(linked):
         c0 += size
     assert coarse.num_patches == sum(sizes)
     np.testing.assert_allclose(z.numpy().reshape(-1), expected, rtol=1e-8, atol=1e-10 * np.abs(expected).max())
+    # the fine-level K it projected, applied to a field: the dense K's product
+    product = k @ r.numpy().reshape(-1)
+    np.testing.assert_allclose(coarse.stiffness_product(r).numpy().reshape(-1), product, rtol=1e-10,
+                               atol=1e-12 * np.abs(product).max())
 
 
 def test_the_band_factorisation_equals_the_dense_one_and_the_patches_make_a_narrow_band():
@@ -163,16 +168,18 @@ def test_the_band_factorisation_equals_the_dense_one_and_the_patches_make_a_narr
     assert c1 - c0 > 150 and width < min(as_aggregated, c1 - c0) / 3, (width, as_aggregated, c1 - c0)
 
 
-def test_coarse_correction_is_differentiable_in_the_forces_and_needs_a_factor():
+def test_coarse_correction_and_stiffness_product_are_differentiable_and_need_a_factor():
     _, cloth, x = _batch()
     coarse = CoarseSpace(cloth)
-    with pytest.raises(RuntimeError, match="factor"):
-        coarse.solve(torch.zeros(cloth.num_verts, 3, dtype=torch.float64))
+    for apply in (coarse.solve, coarse.stiffness_product):
+        with pytest.raises(RuntimeError, match="factor"):
+            apply(torch.zeros(cloth.num_verts, 3, dtype=torch.float64))
     coarse.factor(x)
-    r = torch.randn(cloth.num_verts, 3, dtype=torch.float64, requires_grad=True)
     v = torch.randn(cloth.num_verts, 3, dtype=torch.float64)
-    (coarse.solve(r) * v).sum().backward()
-    torch.testing.assert_close(r.grad, coarse.solve(v))  # a symmetric linear map: its own adjoint
+    for apply in (coarse.solve, coarse.stiffness_product):
+        r = torch.randn(cloth.num_verts, 3, dtype=torch.float64, requires_grad=True)
+        (apply(r) * v).sum().backward()
+        torch.testing.assert_close(r.grad, apply(v))  # a symmetric linear map: its own adjoint
 
 
 def test_fit_is_the_least_squares_fit_by_the_patches_and_is_differentiable():
@@ -240,18 +247,18 @@ def test_a_float32_batch_gets_the_float64_correction_to_float32_precision():
 
 
 def test_an_indefinite_coarse_matrix_is_regularised_until_it_factorises():
-    from physdrape.physics.coarse_space import _regularized_cholesky
+    from physdrape.physics.coarse_factor import regularized_cholesky
 
     block = torch.diag(torch.tensor([1.0, 2.0, -1e-4], dtype=torch.float64))  # a rounded-negative rigid mode
-    chol = _regularized_cholesky(block.clone())  # it overwrites its argument's diagonal
+    chol = regularized_cholesky(block.clone())  # it overwrites its argument's diagonal
     rebuilt = chol @ chol.T
     assert torch.isfinite(chol).all() and torch.linalg.eigvalsh(rebuilt).min() > 0
     assert (rebuilt - block).abs().max() < 0.1  # the smallest regularisation that works (1e-4 x mean diag)
     with pytest.raises(ValueError, match="NaN"):
-        _regularized_cholesky(torch.full((3, 3), float("nan"), dtype=torch.float64))
+        regularized_cholesky(torch.full((3, 3), float("nan"), dtype=torch.float64))
     # a batch: each matrix keeps the factor of the smallest regularisation that works for it
     definite = torch.diag(torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
-    both = _regularized_cholesky(torch.stack([definite, block]))
+    both = regularized_cholesky(torch.stack([definite, block]))
     torch.testing.assert_close(both[1], chol)
     assert (both[0] @ both[0].T - definite).abs().max() < 1e-5  # the first try's 1e-6 x mean diag
 

@@ -28,13 +28,15 @@ linear in those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over th
 a garment's topology and links fix a sparse Galerkin operator G (coarse blocks × pairs), built
 once and cached, and each `factor` forms Pᵀ K P as one sparse product G · K in float64 for all
 the batch's garments of that topology, scattered straight into each garment's coarse matrix,
-which is then factorised by Cholesky. A patch couples only to the patches near it, and the
-patches are numbered (reverse Cuthill–McKee) so that those couplings lie in a band about the
-diagonal: on the CPU the matrix is assembled and factorised in band storage (LAPACK's pbtrf and
-pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense (cuSOLVER), where a
-few hundred unknowns cost little either way and the garments of one topology (a batch of one
-garment on many bodies) are factorised and solved together, in one batched call each. The
-correction is differentiable in r (P and the factor are constants).
+which is then factorised by Cholesky (`physics.coarse_factor`). A patch couples only to the
+patches near it, and the patches are numbered (reverse Cuthill–McKee) so that those couplings lie
+in a band about the diagonal: on the CPU the matrix is assembled and factorised in band storage
+(LAPACK's pbtrf and pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense
+(cuSOLVER), where a few hundred unknowns cost little either way and the garments of one topology
+(a batch of one garment on many bodies) are factorised and solved together, in one batched call
+each. The correction is differentiable in r (P and the factor are constants). The factor keeps
+K's pair blocks, so that `stiffness_product` applies K itself (the solver's inner iterations on
+the quadratic model, `model.stretching_solver`).
 
 Devices: everything runs on the cloth's device (CPU or CUDA): the pair blocks (a Warp kernel),
 the Galerkin product, the factorisation (each garment's coarse system is small, at most
@@ -53,21 +55,21 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import torch
-from scipy.linalg import lapack
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 from torch import Tensor
 
 from physdrape.geometry import topology
 from physdrape.physics.cloth import Cloth
+from physdrape.physics.coarse_factor import (
+    BandSolve,
+    regularized_band_cholesky,
+    regularized_cholesky,
+)
 from physdrape.physics.forces import links
 from physdrape.physics.majorant import pair_blocks
 from physdrape.threads import one_blas_thread
 
 __all__ = ["CoarseSpace"]
-
-#: Regularisation of Pᵀ K P relative to its mean diagonal (a garment the contact does not pin);
-#: raised ×100 until the factorisation succeeds.
-REGULARIZATION = 1e-6
 
 #: Most patches of one garment: a larger garment gets more coarsening levels, so that its coarse
 #: factor stays small (1,200 patches: 3,600 unknowns per refresh, in a band).
@@ -85,83 +87,6 @@ def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smooth
             break
         label = coarser
     return topology.smoothed_prolongation(edges, num_verts, label, smoothing)
-
-
-def _regularized(matrix: Tensor, diagonal: Tensor, factorise):
-    """factorise() of symmetric matrices after adding r·mean(diag) to each one's diagonal, r =
-    REGULARIZATION raised ×100 until it factorises (a float32 K rounds its near-null rigid modes to
-    slightly negative), each matrix keeping the factor of the smallest r that worked; factorise
-    returns the factors and whether each worked (a bool per matrix, or one for a single matrix). A
-    matrix without stiffness (a garment of one patch, free of the body, moves rigidly at no cost)
-    is regularised with mean(diag) = 1: its correction is then a long rigid move that the solver's
-    step clip and line search shorten like any other. `matrix` holds the entries (dense or band
-    storage, with `diagonal` (..., n) a view of the diagonals); it is a scratch copy: its
-    diagonals are overwritten. Dense matrices may come as a batch (count, n, n)."""
-    if not bool(torch.isfinite(matrix.sum())):  # a sum is finite only if every entry is
-        raise ValueError("CoarseSpace.factor: the stiffness has NaN/inf entries (non-finite positions?)")
-    original = diagonal.clone()
-    scale = original.mean(-1, keepdim=True)
-    # no stiffness at all (a lone patch moving freely): any scale regularises it
-    scale = torch.where(scale > 0, scale, torch.ones_like(scale))
-    best = done = None
-    for attempt in range(4):  # up to REGULARIZATION × 10⁶ = the mean diagonal itself
-        diagonal.copy_(original + REGULARIZATION * 100.0 ** attempt * scale)
-        factor, ok = factorise()
-        ok = torch.as_tensor(ok, device=matrix.device)
-        if best is None or not torch.is_tensor(factor):  # the first try, or a single band matrix
-            best, done = factor, ok
-        else:  # the matrices that factorised before keep their factor
-            best, done = torch.where(done[..., None, None], best, factor), done | ok
-        if bool(done.all()):
-            return best
-    raise ValueError("CoarseSpace.factor: the coarse stiffness is not positive semi-definite even with a "
-                     "regularisation of its mean diagonal (K must be a PSD majorant)")
-
-
-def _regularized_cholesky(blocks: Tensor) -> Tensor:
-    """Dense Cholesky factors L (count, n, n) of regularised (`_regularized`) blocks (count, n, n),
-    on any device, in one batched factorisation."""
-    def factorise():
-        chol, info = torch.linalg.cholesky_ex(blocks)
-        return chol, info == 0
-
-    return _regularized(blocks, blocks.diagonal(dim1=-2, dim2=-1), factorise)
-
-
-def _regularized_band_cholesky(band: Tensor) -> np.ndarray:
-    """Band Cholesky factor (LAPACK pbtrf, lower) of a regularised (`_regularized`) symmetric band
-    matrix given as band (n, w + 1) on the CPU, band[j, k] = A[j + k, j] (zero past the end):
-    returned as LAPACK's (w + 1, n) band storage, what `_band_solve` reads."""
-    lower = band.numpy().T  # (w + 1, n), Fortran order: LAPACK's storage without a copy
-
-    def factorise():
-        chol, info = lapack.dpbtrf(lower, lower=1)
-        return chol, info == 0
-
-    return _regularized(band, band[:, 0], factorise)
-
-
-def _band_solve(rhs: Tensor, factors: list[np.ndarray], ranges: list[tuple[int, int]]) -> Tensor:
-    """A⁻¹ rhs (C, 1) float64 on the CPU for the block-diagonal A of the garments' band factors."""
-    out = torch.empty_like(rhs)
-    values = rhs.detach().numpy()
-    with one_blas_thread():
-        for (c0, c1), chol in zip(ranges, factors):
-            out[c0:c1] = torch.from_numpy(lapack.dpbtrs(chol, values[c0:c1], lower=1)[0])
-    return out
-
-
-class _BandSolve(torch.autograd.Function):
-    """`_band_solve`, differentiable in rhs (A is symmetric: the backward is the same solve)."""
-
-    @staticmethod
-    def forward(ctx, rhs: Tensor, factors: list, ranges: list) -> Tensor:
-        ctx.factors, ctx.ranges = factors, ranges
-        return _band_solve(rhs, factors, ranges)
-
-    @staticmethod
-    def backward(ctx, grad: Tensor):
-        return _band_solve(grad.contiguous(), ctx.factors, ctx.ranges), None, None
 
 
 def _band_order(blocks: np.ndarray, patches: int) -> np.ndarray:
@@ -223,6 +148,7 @@ class _GarmentGalerkin:
 
     prolong: sp.csr_matrix
     num_pairs: int
+    pair_ends: np.ndarray  # (pairs, 2): each pair's two vertices, local ids
     pair_of_corner: np.ndarray
     pair_of_vertex: np.ndarray
     pair_of_link: np.ndarray
@@ -263,8 +189,9 @@ def _garment_galerkin(faces: np.ndarray, num_verts: int, linked: np.ndarray, lev
             row = 3 * (blocks // patches)[:, None] + np.arange(3)  # (blocks, 3)
             col = 3 * (blocks % patches)[:, None] + np.arange(3)
             destination = (row[:, :, None] * (3 * patches) + col[:, None, :]).reshape(-1)
-            _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), where.astype(np.int32), itself, link_pairs,
-                                              operator, destination, min(bandwidth, 3 * patches - 1))
+            _GALERKIN[key] = _GarmentGalerkin(prolong, len(pairs), np.stack([pairs // num_verts, pairs % num_verts], 1),
+                                              where.astype(np.int32), itself, link_pairs, operator, destination,
+                                              min(bandwidth, 3 * patches - 1))
             while len(_GALERKIN) > _GALERKIN_SIZE:
                 _GALERKIN.popitem(last=False)
         _GALERKIN.move_to_end(key)
@@ -315,6 +242,7 @@ class _BatchStructure:
     matrix_offsets: list[int]  # where each garment's coarse matrix (dense or band) starts in the buffer
     buffer_size: int  # all garments' coarse matrices
     num_pairs: int
+    pair_ends: Tensor  # (pairs, 2) vertex indices of the batch
     pair_of_corner: Tensor
     pair_of_vertex: Tensor
     pair_of_link: Tensor  # (L, 2)
@@ -335,6 +263,7 @@ class _BatchStructure:
             raise ValueError("CoarseSpace: a stitch or layer pair ties two garments; links must join vertices of "
                              "one garment")
         pair_of_link = np.zeros(linked.shape, np.int64)
+        ends = []
         for g, (nv, nf) in enumerate(zip(vert_counts, face_counts)):
             local = faces[f0:f0 + nf] - v0
             if nf and (local.min() < 0 or local.max() >= nv):
@@ -342,6 +271,7 @@ class _BatchStructure:
             own = np.flatnonzero(link_garment[:, 0] == g)
             garment = _garment_galerkin(np.ascontiguousarray(local), nv, linked[own] - v0, levels, smoothing)
             pair_of_link[own] = garment.pair_of_link + p0
+            ends.append(garment.pair_ends + v0)
             garments.append(garment)
             patches = garment.prolong.shape[1]
             coarse_ranges.append((3 * c0, 3 * (c0 + patches)))
@@ -384,6 +314,7 @@ class _BatchStructure:
             matrix_offsets=matrix_offsets,
             buffer_size=offset,
             num_pairs=p0,
+            pair_ends=torch.from_numpy(np.concatenate(ends) if ends else np.zeros((0, 2), np.int64)).to(device),
             pair_of_corner=torch.from_numpy(np.concatenate(
                 [g.pair_of_corner + start for g, start in zip(garments, pair_starts)]).astype(np.int32)).to(device),
             pair_of_vertex=torch.from_numpy(np.concatenate(
@@ -435,6 +366,7 @@ class CoarseSpace:
         self.num_patches = self._s.num_patches
         self._factors: list | None = None  # band: one per garment (NumPy); dense: (count, n, n) per group
         self._gram: list[Tensor] | None = None
+        self.blocks: Tensor | None = None  # K at the last `factor`: a 3 × 3 block per vertex pair, float64
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
@@ -450,7 +382,7 @@ class CoarseSpace:
             if self._links is not None:
                 coupling = -self._links.blocks.to(blocks.dtype)
                 blocks.index_add_(0, s.pair_of_link[:, 0], coupling).index_add_(0, s.pair_of_link[:, 1], coupling)
-            flat = blocks.reshape(-1, 9)
+            self.blocks, flat = blocks, blocks.reshape(-1, 9)
             buffer = blocks.new_zeros(s.buffer_size + 1)  # the last slot: the bands' upper triangles
             for group in s.groups:  # Pᵀ K P block by block: G times the pair blocks of the group's garments
                 count, pairs = group.pair_rows.shape
@@ -460,11 +392,21 @@ class CoarseSpace:
         if s.banded:
             with one_blas_thread():
                 self._factors = [
-                    _regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
+                    regularized_band_cholesky(buffer[start:start + (c1 - c0) * (w + 1)].view(c1 - c0, w + 1))
                     for start, (c0, c1), w in zip(s.matrix_offsets, s.coarse_ranges, s.band_widths)]
         else:  # the garments of one topology together: one batched factorisation per group
-            self._factors = [_regularized_cholesky(buffer[group.matrix_entries].view(-1, n, n))
+            self._factors = [regularized_cholesky(buffer[group.matrix_entries].view(-1, n, n))
                              for group in s.groups for n in [group.coarse_dofs.shape[1]]]
+
+    def stiffness_product(self, v: Tensor) -> Tensor:
+        """K v for a per-vertex field v (V, 3), K the fine-level stiffness that the last `factor`
+        projected (the strain majorant, its vertex blocks and the links' coupling), in v's dtype;
+        differentiable in v (K is a constant)."""
+        if self.blocks is None:
+            raise RuntimeError("CoarseSpace.stiffness_product before factor: call factor(x) first")
+        rows, cols = self._s.pair_ends[:, 0], self._s.pair_ends[:, 1]
+        product = (self.blocks @ v.double()[cols].unsqueeze(-1)).squeeze(-1)
+        return torch.zeros(v.shape, dtype=torch.float64, device=v.device).index_add(0, rows, product).to(v.dtype)
 
     def fit(self, field: Tensor) -> Tensor:
         """The coarse space's least-squares fit of a per-vertex field (V, 3): P c with c minimising
@@ -489,7 +431,7 @@ class CoarseSpace:
         s = self._s
         coarse_r = (s.restrict @ r.double()).reshape(-1, 1)
         if s.banded:
-            coarse_z = _BandSolve.apply(coarse_r, self._factors, s.coarse_ranges)
+            coarse_z = BandSolve.apply(coarse_r, self._factors, s.coarse_ranges)
             return (s.prolong @ coarse_z.reshape(self.num_patches, 3)).to(r.dtype)
         coarse_z = torch.zeros_like(coarse_r)
         for group, chol in zip(s.groups, self._factors):  # (L Lᵀ)⁻¹ b, the group's garments together
