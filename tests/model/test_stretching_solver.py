@@ -54,14 +54,15 @@ def _solver(kind="two_level", **kwargs):
     return StretchingSolver(kind=kind, margin=2e-3, contact_stiffness=2.5e3, **kwargs)
 
 
+@pytest.mark.parametrize("inner", [1, 3], ids=["preconditioned", "truncated_newton"])
 @pytest.mark.parametrize("with_body", [False, True])
-def test_steps_never_raise_any_garments_potential(with_body):
+def test_steps_never_raise_any_garments_potential(with_body, inner):
     batch, x0 = _case(radii=(0.16, 0.185))  # the middle rings of both tubes start inside their bodies
     gen = torch.Generator().manual_seed(1)
     f_hat = 0.02 * torch.randn(x0.shape, generator=gen, dtype=torch.float64) * batch.cloth.mass[:, None] * 9.81
     steps = 12
     # planes held for the whole solve (requery_every = steps), so Φ is one function throughout
-    solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=steps)
+    solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=steps, inner_steps=4, inner_iterations=inner)
     bodies = dict(bodies=batch.bodies, body_index=batch.body_index) if with_body else {}
     trace = []
     with torch.no_grad():
@@ -315,3 +316,75 @@ def test_followed_planes_are_found_again_only_for_samples_that_moved_min_move():
     assert module.StretchingSolver(kind="two_level", eta=1.0, margin=2e-3, contact_stiffness=1.0).follow_min_move == 0.0
     with pytest.raises(ValueError, match="follow_min_move"):
         _solver(eta=1.0, follow_min_move=-1.0)
+
+
+def _inner_problem():
+    """The tubes' cloth, a factored coarse space (its K) and the two-level preconditioner C at x."""
+    from functools import partial
+
+    import physdrape.model.stretching_solver as module
+
+    batch, x = _case()
+    cloth = batch.cloth
+    solver = _solver(eta=1.0)
+    gen = torch.Generator().manual_seed(5)  # contact-like blocks k n nᵀ: they pin the rigid motions
+    normal = torch.nn.functional.normalize(torch.randn(cloth.num_verts, 3, generator=gen, dtype=torch.float64), dim=-1)
+    contact = 40.0 * torch.rand(cloth.num_verts, 1, 1, generator=gen, dtype=torch.float64) * normal[:, :, None] * normal[:, None]
+    coarse = CoarseSpace(cloth)
+    coarse.factor(x, contact)
+    precondition = partial(module._precondition, solver._stiffness_inverse(x, cloth, contact), coarse)
+
+    def per_garment(values):
+        return cloth.sum_per_garment(values.sum(-1), cloth.vert_garment)
+
+    return module, cloth, coarse, precondition, per_garment
+
+
+def test_truncated_newton_is_preconditioned_cg_on_k():
+    """One iteration is C F at the quadratic model's best length along it; many solve K z = F
+    garment by garment; the coefficients are not differentiated, so z is a linear map of F."""
+    module, cloth, coarse, precondition, per_garment = _inner_problem()
+    owner = cloth.vert_garment
+    gen = torch.Generator().manual_seed(4)
+    force = torch.randn(cloth.num_verts, 3, generator=gen, dtype=torch.float64)
+    newton = module._truncated_newton
+    one = newton(precondition, coarse.stiffness_product, force, 1, per_garment, owner)
+    cf = precondition(force)
+    length = per_garment(force * cf) / per_garment(cf * coarse.stiffness_product(cf))
+    torch.testing.assert_close(one, length[owner, None] * cf, rtol=1e-12, atol=0)
+    residuals = []
+    for iterations in (3, 10, 400):
+        z = newton(precondition, coarse.stiffness_product, force, iterations, per_garment, owner)
+        residual = per_garment((force - coarse.stiffness_product(z)) ** 2).sqrt() / per_garment(force**2).sqrt()
+        residuals.append(residual)
+        assert bool((per_garment(force * z) > 0).all())  # a descent direction of every garment's model
+    assert bool((residuals[1] < residuals[0]).all()) and bool((residuals[2] < 1e-8).all())
+    f = force.clone().requires_grad_(True)
+    v = torch.randn(cloth.num_verts, 3, generator=gen, dtype=torch.float64)
+    z = newton(precondition, coarse.stiffness_product, f, 3, per_garment, owner)
+    (grad,) = torch.autograd.grad((z * v).sum(), f)
+    torch.testing.assert_close((grad * force).sum(), (v * z.detach()).sum(), rtol=1e-10, atol=0)  # z = L F
+
+
+def test_inner_iterations_at_the_first_steps_by_mode(monkeypatch):
+    """The truncated Newton direction at the first inner_steps steps, with training's
+    inner_iterations or eval mode's; plain preconditioned steps after them and at 1 iteration."""
+    import physdrape.model.stretching_solver as module
+
+    batch, x0 = _case()
+    calls, original = [], module._truncated_newton
+
+    def newton(*args):
+        calls.append(args[3])
+        return original(*args)
+
+    monkeypatch.setattr(module, "_truncated_newton", newton)
+    solver = _solver(eta=1.0, max_step=0.01, inner_steps=2, inner_iterations=1, eval_inner_iterations=4)
+    for mode, want in ((solver.train, []), (solver.eval, [4, 4])):
+        mode()
+        calls.clear()
+        with torch.no_grad():
+            solver(x0, batch.cloth, f_hat=None, steps=5, bodies=batch.bodies, body_index=batch.body_index)
+        assert calls == want
+    with pytest.raises(ValueError, match="inner_iterations"):
+        _solver(eta=1.0, inner_iterations=0)

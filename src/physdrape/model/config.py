@@ -63,7 +63,12 @@ class ModelConfig:
     (`results/solver_settings_planes.md`), while training through followed planes teaches it
     moves the solver then takes back (`docs/training/README.md`). follow_min_move: followed planes
     are found again only for the samples that moved more than this [m] since their planes were
-    found (0: every near sample at every step; see `StretchingSolver`).
+    found (0: every near sample at every step; see `StretchingSolver`). inner_steps,
+    inner_iterations: the first solver steps whose direction is that many preconditioned
+    conjugate-gradient iterations on the quadratic model (a truncated Newton step; 1: the plain
+    preconditioned step); eval_inner_iterations in eval mode: the shipped model was trained on
+    plain steps and drapes with 3 iterations at its first 3 steps
+    (`results/solver_settings_inner_iterations.md`).
     f_hat_steps: the solver steps that carry the network's force f̂, its first ones (None: every
     step, the paper's); the later ones relax the garment's own energy, so a long solve ends at
     the physics' equilibrium and not at F = −f̂ (the shipped model's 3 = its train_steps: T = 3
@@ -110,6 +115,9 @@ class ModelConfig:
     eval_follow_planes: bool = True
     f_hat_steps: int | None = 3
     follow_min_move: float = 1e-3
+    inner_steps: int = 3
+    inner_iterations: int = 1
+    eval_inner_iterations: int = 3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     delta: float = 1.05
@@ -138,6 +146,10 @@ class ModelConfig:
         k = self.f_hat_steps
         if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
             raise ValueError(f"ModelConfig.f_hat_steps must be an integer ≥ 0 (null: every solver step), got {k!r}")
+        if self.inner_steps < 0 or self.inner_iterations < 1 or self.eval_inner_iterations < 1:
+            raise ValueError(f"ModelConfig needs inner_steps ≥ 0 and inner_iterations, eval_inner_iterations ≥ 1 "
+                             f"(1: the plain preconditioned step), got {self.inner_steps}, {self.inner_iterations}, "
+                             f"{self.eval_inner_iterations}")
         if not self.follow_min_move >= 0:
             raise ValueError(f"ModelConfig.follow_min_move must be ≥ 0 [m] (0: every followed sample at every step), "
                              f"got {self.follow_min_move}")

@@ -74,7 +74,9 @@ class PhysDrape(nn.Module):
                                        refactor_first=config.refactor_first, follow_planes=config.follow_planes,
                                        eval_requery_every=config.eval_requery_every,
                                        eval_follow_planes=config.eval_follow_planes, f_hat_steps=config.f_hat_steps,
-                                       follow_min_move=config.follow_min_move,
+                                       follow_min_move=config.follow_min_move, inner_steps=config.inner_steps,
+                                       inner_iterations=config.inner_iterations,
+                                       eval_inner_iterations=config.eval_inner_iterations,
                                        coarse_levels=config.coarse_levels,
                                        coarse_smoothing=config.coarse_smoothing)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)

@@ -62,6 +62,14 @@ class StretchingSolver(nn.Module):
       the minimum of a parabola through Φ along the clipped move η γ^t C F (then halved while Φ
       does not drop), so no step raises a garment's Φ (on the planes held at that step). C, the
       conjugation and the step length are not differentiated; the step is, through F, f̂, η, γ.
+      At the first `inner_steps` steps the direction can be a truncated Newton step instead:
+      `inner_iterations` iterations of conjugate gradients on the quadratic model K z = F from
+      z = 0, preconditioned by C (one iteration: C F itself), K the PSD majorant that the coarse
+      space factorises (`CoarseSpace.stiffness_product`: strain, contact and the links; bending
+      only through C). A few iterations reach what one application of C leaves: the coupling
+      between neighbouring vertices and patches, largest while X_init's strain relaxes; more
+      converge on the majorant's minimum, which overshoots Φ's (the line search then shortens
+      them). The iterations' coefficients are not differentiated (z stays linear in F).
 
     Stability guard (both kinds): each vertex's step is clipped to `max_step` [m] in length,
     keeping its direction. Kinematic initialisations can stretch edges where the pose pulls the
@@ -99,6 +107,9 @@ class StretchingSolver(nn.Module):
             planes' schedule changes no weight, so a model can be trained on one schedule and
             drape with another (training through followed planes teaches the network moves the
             solver then takes back, `docs/training/README.md`).
+        inner_steps, inner_iterations: the first steps whose direction is `inner_iterations`
+            preconditioned conjugate-gradient iterations on K z = F (1: C F, no iteration).
+        eval_inner_iterations: inner_iterations in eval mode (None: as in training).
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
@@ -110,7 +121,8 @@ class StretchingSolver(nn.Module):
                  refactor_first: int = 0, follow_planes: bool = False, max_halvings: int = 6,
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01,
                  eval_requery_every: int | None = None, eval_follow_planes: bool | None = None,
-                 f_hat_steps: int | None = None, follow_min_move: float = 0.0) -> None:
+                 f_hat_steps: int | None = None, follow_min_move: float = 0.0, inner_steps: int = 0,
+                 inner_iterations: int = 1, eval_inner_iterations: int | None = None) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -122,6 +134,10 @@ class StretchingSolver(nn.Module):
             raise ValueError(f"need requery_every ≥ 1, eval_requery_every ≥ 1, refactor_every ≥ 1, refactor_first ≥ 0 "
                              f"and max_halvings ≥ 0, got {requery_every}, {eval_requery_every}, {refactor_every}, "
                              f"{refactor_first}, {max_halvings}")
+        eval_inner_iterations = inner_iterations if eval_inner_iterations is None else eval_inner_iterations
+        if inner_steps < 0 or min(inner_iterations, eval_inner_iterations) < 1:
+            raise ValueError(f"need inner_steps ≥ 0, inner_iterations ≥ 1 and eval_inner_iterations ≥ 1, got "
+                             f"{inner_steps}, {inner_iterations}, {eval_inner_iterations}")
         if f_hat_steps is not None and f_hat_steps < 0:
             raise ValueError(f"f_hat_steps must be ≥ 0 (None: every step), got {f_hat_steps}")
         if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0 or follow_min_move < 0:
@@ -139,6 +155,8 @@ class StretchingSolver(nn.Module):
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band = contact_band
         self.follow_min_move = follow_min_move
+        self.inner_steps, self.inner_iterations = inner_steps, inner_iterations
+        self.eval_inner_iterations = eval_inner_iterations
         self.log_eta = nn.Parameter(torch.tensor(math.log(eta)))
         self.gamma_logit = nn.Parameter(torch.tensor(math.log(gamma / (1.0 - gamma))))
 
@@ -211,7 +229,12 @@ class StretchingSolver(nn.Module):
             contact = problem.contact_blocks(x)
             if t % self.refactor_every == 0 or t < self.refactor_first:
                 coarse.factor(x, contact)
-            z = _precondition(self._stiffness_inverse(x.detach(), cloth, contact), coarse, force)
+            precondition = partial(_precondition, self._stiffness_inverse(x.detach(), cloth, contact), coarse)
+            iterations = self.inner_iterations if self.training else self.eval_inner_iterations
+            if t < self.inner_steps and iterations > 1:
+                z = _truncated_newton(precondition, coarse.stiffness_product, force, iterations, per_garment, owner)
+            else:
+                z = precondition(force)
             if direction is not None:
                 with torch.no_grad():  # Polak-Ribière+, preconditioned; the history is not differentiated
                     beta = per_garment(z.detach() * (force.detach() - last_force))
@@ -296,6 +319,35 @@ def clip_moves(move: Tensor, max_length: float) -> Tensor:
         return move
     length = move.norm(dim=-1, keepdim=True)
     return move * (max_length / length.clamp_min(max_length))
+
+
+def _truncated_newton(precondition: Callable[[Tensor], Tensor], stiffness: Callable[[Tensor], Tensor], force: Tensor,
+                      iterations: int, per_garment: Callable[[Tensor], Tensor], owner: Tensor) -> Tensor:
+    """z ≈ K⁻¹ F (V, 3) [m] by `iterations` conjugate-gradient iterations from z = 0, each
+    garment on its own, preconditioned by C (`precondition`); K (`stiffness`) and C linear maps
+    of per-vertex fields. The coefficients come from detached values: z is a linear map of F."""
+    tiny = torch.finfo(torch.float64).tiny
+    residual, z = force, torch.zeros_like(force)
+    preconditioned = precondition(residual)
+    direction = preconditioned
+    with torch.no_grad():
+        rz = per_garment((residual.detach() * preconditioned.detach()).double())
+    for k in range(iterations):
+        curved = stiffness(direction)
+        with torch.no_grad():
+            curvature = per_garment((direction.detach() * curved.detach()).double())
+            alpha = torch.where(curvature > 0, rz / curvature.clamp_min(tiny), torch.zeros_like(rz)).to(force.dtype)
+        z = z + alpha[owner, None] * direction
+        if k == iterations - 1:
+            break
+        residual = residual - alpha[owner, None] * curved
+        preconditioned = precondition(residual)
+        with torch.no_grad():
+            rz_next = per_garment((residual.detach() * preconditioned.detach()).double())
+            beta = (rz_next / rz.clamp_min(tiny)).to(force.dtype)
+        direction = preconditioned + beta[owner, None] * direction
+        rz = rz_next
+    return z
 
 
 def _precondition(stiffness_inverse: Tensor, coarse: CoarseSpace, force: Tensor) -> Tensor:
