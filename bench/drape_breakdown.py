@@ -15,8 +15,9 @@ spent in each, with how often it ran:
   X_init (skinning transfer and strain limiting, its queries included);
 - the graph inputs and the GNN;
 - the stretching solver, and within it the body requeries, the coarse factorisations, the
-  stiffness blocks and their inverses, the forces, the contact blocks, the coarse solves and the
-  line-search potentials (the rest: the conjugation, clips and updates);
+  stiffness blocks and their inverses, the forces, the contact blocks, the coarse solves, the
+  stiffness products of the first steps' inner iterations and the line-search potentials (the
+  rest: the conjugation, clips and updates);
 - the collision handler and the metrics (the drape's `metrics_s`);
 - across all of them, the time inside Warp kernels (compiled code), and of that the BVH searches
   (closest faces, winding numbers, rays): what a faster Python or torch layer cannot remove.
@@ -54,6 +55,7 @@ PHASES = [
     ("forces", "physdrape.model.stretching_solver", "_Relaxation", "force", 1),
     ("contact blocks", "physdrape.model.stretching_solver", "_Relaxation", "contact_blocks", 1),
     ("coarse solves", "physdrape.physics.coarse_space", "CoarseSpace", "solve", 1),
+    ("stiffness products (inner iterations)", "physdrape.physics.coarse_space", "CoarseSpace", "stiffness_product", 1),
     ("line-search potentials", "physdrape.model.stretching_solver", "_Relaxation", "potential", 1),
     ("collision handler", "physdrape.model.collision_handler", "CollisionHandler", "forward", 0),
 ]
