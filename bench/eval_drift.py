@@ -44,7 +44,8 @@ ROWS = {"gnn_only": (Variant.GNN_ONLY, None, True), "physdrape_t3": (Variant.FUL
 
 def _planes_note(solver, override: bool | None) -> str:
     every, follow = solver.planes_schedule()
-    held = "followed at every step" if follow else "held"
+    held = (f"followed (found again after a {1e3 * solver.follow_min_move:g} mm move)" if follow and solver.follow_min_move
+            else "followed at every step" if follow else "held")
     flag = "" if override is None else f" (`--{'' if override else 'no-'}follow-planes`)"
     return f", the solver's body planes {held} between body queries every {every} steps{flag}"
 

@@ -77,8 +77,8 @@ class Draper:
         checkpoint: a checkpoint directory (model.safetensors + config.json) or a run directory
             (its ``latest``); None = the bundled model (`physdrape.checkpoint.bundled_model`).
         steps: solver steps T at inference (paper: 15).
-        follow_planes: the solver's body planes followed at every step between body searches,
-            or held between them as in training (`PhysDrape.set_eval_planes`); None: the
+        follow_planes: the solver's body planes followed between body searches (each found again
+            once its sample has moved `ModelConfig.follow_min_move`), or held between them as in training (`PhysDrape.set_eval_planes`); None: the
             checkpoint's (`ModelConfig.eval_follow_planes`).
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
             `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
