@@ -393,9 +393,10 @@ class _Relaxation:
         local: only the samples within the contact band of their held planes (and, with
         `min_move`, moved that far since their planes were found); the others keep theirs (no
         contact term or block reaches them at this step: they are more than a band away from the
-        body; or their planes are a fraction of a millimetre old). Returns the change of Φ at x per garment (G,) [J], float64, that
-        the new planes make (only the followed samples' penalties change), or None after a full
-        query (every plane may have changed: Φ is evaluated anew).
+        body; or their planes are a fraction of a millimetre old). Returns the change of Φ at x
+        per garment (G,) [J], float64, that the new planes make (only the followed samples'
+        penalties change), or None after a full query (every plane may have changed: Φ is
+        evaluated anew).
         """
         with torch.no_grad():
             if not local or self.planes is None:
