@@ -78,8 +78,8 @@ class Draper:
             (its ``latest``); None = the bundled model (`physdrape.checkpoint.bundled_model`).
         steps: solver steps T at inference (paper: 15).
         follow_planes: the solver's body planes followed between body searches (each found again
-            once its sample has moved `ModelConfig.follow_min_move`), or held between them as in training (`PhysDrape.set_eval_planes`); None: the
-            checkpoint's (`ModelConfig.eval_follow_planes`).
+            once its sample moved `ModelConfig.follow_min_move`), or held between them as in
+            training (`PhysDrape.set_eval_planes`); None: the checkpoint's (`eval_follow_planes`).
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
             `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
         smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
