@@ -3,9 +3,18 @@
 import numpy as np
 import pytest
 
-from physdrape.garments.mesh_cleanup import collapse_short_edges, flip_to_delaunay, remove_flat_ears
+from physdrape.garments.mesh_cleanup import (
+    collapse_short_edges,
+    flip_to_delaunay,
+    remove_flat_ears,
+    repair_moved_mesh,
+)
 from physdrape.geometry.primitives import grid_sheet
-from physdrape.geometry.topology import boundary_loops, non_manifold_edges, undirected_edges
+from physdrape.geometry.topology import (
+    boundary_loops,
+    non_manifold_edges,
+    undirected_edges,
+)
 
 
 def euler(v, f):
@@ -73,6 +82,32 @@ def test_flip_makes_a_flat_quad_delaunay():
     f2 = flip_to_delaunay(v, f)
     assert {tuple(sorted(t)) for t in f2.tolist()} == {(0, 2, 3), (1, 2, 3)}
     assert (normals(v, f2)[:, 2] > 0).all() == (normals(v, f)[:, 2] > 0).all()
+
+
+def test_flip_unfolds_a_sliver_folded_over_its_neighbour():
+    # the sliver (0, 1, 2) has its far corner 2 just across the edge 0-1, over the big face (1, 0, 3)
+    v = np.array([[0, 0, 0], [2, 0, 0], [1, -0.01, 0], [1, -1, 0]], np.float64)
+    f = np.array([[0, 1, 2], [1, 0, 3]], np.int64)
+    assert normals(v, f)[0, 2] < 0 < normals(v, f)[1, 2]  # folded
+    np.testing.assert_array_equal(flip_to_delaunay(v, f), f)  # not coplanar: left by default
+    f2 = flip_to_delaunay(v, f, fold_area_ratio=0.05)
+    assert {tuple(sorted(t)) for t in f2.tolist()} == {(0, 2, 3), (1, 2, 3)}
+    assert (normals(v, f2)[:, 2] > 0).all()  # both with the big face's orientation
+    v[2, 1] = -0.5  # a fold of two faces of similar size (a hem turned back) is a shape, kept
+    np.testing.assert_array_equal(flip_to_delaunay(v, f, fold_area_ratio=0.05), f)
+
+
+def test_repair_after_moves_collapses_squeezed_edges_and_flips_slivers():
+    v, f = sheet()
+    e = undirected_edges(f)
+    inside = (v[:, 0] > 0) & (v[:, 0] < 1) & (v[:, 2] > 0) & (v[:, 2] < 1)
+    a, b = next((a, b) for a, b in e if inside[a] and inside[b])
+    v = v.copy()
+    v[b] = v[a] + 0.02 * (v[b] - v[a])  # a move squeezed an edge
+    v2, f2 = repair_moved_mesh(v, f, min_edge=0.05)
+    assert len(v2) == len(v) - 1 and euler(v2, f2) == euler(v, f)
+    lengths = np.linalg.norm(v2[undirected_edges(f2)[:, 0]] - v2[undirected_edges(f2)[:, 1]], axis=1)
+    assert lengths.min() > 0.05
 
 
 def test_remeshed_garment_has_no_short_edges_or_slivers(tmp_path):

@@ -28,7 +28,7 @@ from physdrape.geometry.topology import (
     undirected_edges,
 )
 
-__all__ = ["collapse_short_edges", "flip_to_delaunay", "remove_flat_ears"]
+__all__ = ["collapse_short_edges", "flip_to_delaunay", "remove_flat_ears", "repair_moved_mesh"]
 
 
 def _vertex_faces(faces: np.ndarray, num_verts: int) -> list[list[int]]:
@@ -150,8 +150,14 @@ def _angle_at(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> float:
 
 
 def flip_to_delaunay(verts: np.ndarray, faces: np.ndarray, *, max_dihedral_deg: float = 20.0,
-                     sweeps: int = 5) -> np.ndarray:
+                     sweeps: int = 5, fold_area_ratio: float = 0.0) -> np.ndarray:
     """Flip interior edges whose opposite angles sum to more than pi (see the module docstring).
+
+    fold_area_ratio: also flip where a sliver is folded over its neighbour (their normals
+    opposite within `max_dihedral_deg`, the sliver under this fraction of the neighbour's area):
+    its far corner lies just across the shared edge, so the flip unfolds it; such a triangle,
+    flat in the rest shape, would be stretched without bound by any move of that corner.
+    0: coplanar pairs only.
 
     Returns:
         faces with the same vertices, winding kept.
@@ -168,9 +174,13 @@ def flip_to_delaunay(verts: np.ndarray, faces: np.ndarray, *, max_dihedral_deg: 
         h = interior_hinges(f)
         a, b, c, d = (v[h[:, i]] for i in range(4))
         n_s, n_t = np.cross(b - a, c - a), np.cross(a - b, d - b)
-        coplanar = (n_s * n_t).sum(-1) >= cos_limit * np.linalg.norm(n_s, axis=-1) * np.linalg.norm(n_t, axis=-1)
+        norm_s, norm_t = np.linalg.norm(n_s, axis=-1), np.linalg.norm(n_t, axis=-1)
+        cosine = (n_s * n_t).sum(-1)
+        coplanar = cosine >= cos_limit * norm_s * norm_t
+        folded = (cosine <= -cos_limit * norm_s * norm_t) & (np.minimum(norm_s, norm_t)
+                                                              < fold_area_ratio * np.maximum(norm_s, norm_t))
         excess = angle(c, a, b) + angle(d, a, b) - np.pi
-        candidates = np.nonzero((excess > 1e-9) & coplanar)[0]
+        candidates = np.nonzero((excess > 1e-9) & (coplanar | folded))[0]
         if not len(candidates):
             break
         edges = {tuple(e) for e in undirected_edges(f).tolist()}
@@ -196,3 +206,18 @@ def flip_to_delaunay(verts: np.ndarray, faces: np.ndarray, *, max_dihedral_deg: 
         if not flipped:
             break
     return f
+
+
+def repair_moved_mesh(verts: np.ndarray, faces: np.ndarray, *, min_edge: float,
+                      fold_area_ratio: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Clean a finished mesh after its vertices were moved one by one (pushed out of a body,
+    layers pulled apart): such moves squeeze edges and fold slivers over their neighbours, and
+    the garment's rest shape must not keep them. Collapses the edges shorter than `min_edge` [m]
+    and flips slivers, folded ones included (`flip_to_delaunay`'s `fold_area_ratio`).
+
+    Returns:
+        (verts, faces) without the collapsed vertices (the others keep their order).
+    """
+    v, f = collapse_short_edges(verts, faces, min_edge)
+    return v, flip_to_delaunay(v, f, fold_area_ratio=fold_area_ratio)
+

@@ -23,8 +23,9 @@ import torch
 
 from physdrape.body.anny_body import get_anny_body
 from physdrape.garments.generator import GarmentTemplate
+from physdrape.garments.mesh_cleanup import repair_moved_mesh
 from physdrape.garments.numpy_geometry import BodyDistance
-from physdrape.garments.remesh import remesh
+from physdrape.garments.remesh import SHORT_EDGE_RATIO, remesh
 from physdrape.garments.untangle import untangle_garment
 from physdrape.geometry.mesh import MeshError, read_obj
 from physdrape.geometry.topology import undirected_edges, vertex_adjacency
@@ -161,6 +162,9 @@ def load_mhclo(
         untangle: after that, separate the pieces' layers where they cross (a top refit through
             trousers; `garments.untangle.untangle_garment`), kept when no crossing is left;
             needs `resolve_margin`.
+        A remeshed garment is then cleaned once more (`mesh_cleanup.repair_moved_mesh`): edges
+        those moves squeezed under `SHORT_EDGE_RATIO` x target_edge collapsed, slivers flipped,
+        folded ones included.
 
     Returns:
         the garment (y-up metres, on that body).
@@ -193,6 +197,10 @@ def load_mhclo(
             if info.faces_after == 0:  # a partial untangle can leave a layer moved aside (an open front)
                 g.verts = verts
             g.meta["untangled"] = info.as_dict() | {"kept": info.faces_after == 0}
+    if target_edge is not None:  # the remesher's slivers, and those the moves above squeezed or folded
+        count = len(g.verts)
+        g.verts, g.faces = repair_moved_mesh(g.verts, g.faces, min_edge=SHORT_EDGE_RATIO * target_edge)
+        g.meta["repair_collapsed_verts"] = count - len(g.verts)
     return g
 
 
