@@ -92,6 +92,10 @@ class ModelConfig:
     or riding up as a whole is a smooth force, where "direct" needs the move vertex by vertex.
     max_move: the preconditioned move's per-vertex length limit [m] (a guard: C's coarse modes
     are soft, so a force field can ask for moves of metres, e.g. through the body).
+    passes: network passes, one set of weights: pass k > 1 reads its inputs at the garment the
+    passes before it moved (its internal forces, normals, body distances and edges there) and
+    adds its move, so it sees and corrects the residual of the passes before it; f̂ is the last
+    pass's. Each pass costs a network evaluation and a body query.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -128,6 +132,7 @@ class ModelConfig:
     displacement_scale: float = 0.01
     force_scale: float = 1.0
     max_move: float = 0.03
+    passes: int = 1
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
 
@@ -155,6 +160,8 @@ class ModelConfig:
                              f"got {self.follow_min_move}")
         if self.eval_requery_every < 1:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
+        if self.passes < 1:
+            raise ValueError(f"ModelConfig.passes must be ≥ 1 (network passes), got {self.passes}")
         if self.levels < 0:
             raise ValueError(f"ModelConfig.levels must be ≥ 0, got {self.levels}")
 

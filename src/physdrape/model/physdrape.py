@@ -89,15 +89,16 @@ class PhysDrape(nn.Module):
         self.config = replace(self.config, eval_follow_planes=bool(follow), eval_requery_every=every)
         self.solver.eval_follow_planes, self.solver.eval_requery_every = bool(follow), every
 
-    def graph_inputs(self, batch: DrapeInput) -> tuple[Tensor, Tensor, GraphLevels]:
-        """Raw (un-normalised) node and edge features at X_init, in the network's dtype, and the
-        graph they live on (the mesh edges, plus `config.levels` coarse levels)."""
-        query = batch.bodies.query(batch.x_init, body_index=batch.body_index)
+    def graph_inputs(self, batch: DrapeInput, x: Tensor | None = None) -> tuple[Tensor, Tensor, GraphLevels]:
+        """Raw (un-normalised) node and edge features at x (default X_init), in the network's
+        dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels)."""
+        x = batch.x_init if x is None else x
+        query = batch.bodies.query(x, body_index=batch.body_index)
         net_dtype = self.gnn.decoder[0].weight.dtype
-        nodes = node_features(batch.x_init, batch.garments, batch.cloth, query.signed_distance).to(net_dtype)
+        nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance).to(net_dtype)
         levels = self.config.levels
         graph = batch.garments.graph_levels(levels)
-        edges = edge_features(batch.x_init, batch.garments, graph.edge_index, graph.level, levels)
+        edges = edge_features(x, batch.garments, graph.edge_index, graph.level, levels)
         return nodes, edges.to(net_dtype), graph
 
     @torch.no_grad()
@@ -110,20 +111,24 @@ class PhysDrape(nn.Module):
     def forward(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
         """Drape a batch. steps: solver steps T (default: train_steps in training, else eval_steps)."""
         cfg = self.config
-        x_init = batch.x_init
-        nodes, edges, graph = self.graph_inputs(batch)
-        out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), graph)
-        out = out.to(x_init.dtype)
         # forces in units of each vertex's weight: the support a vertex needs is of that order
         weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
-        if cfg.displacement is Displacement.PRECONDITIONED:
-            precondition = self.solver.preconditioner(x_init.detach(), batch.cloth, bodies=batch.bodies,
-                                                      body_index=batch.body_index)
-            delta_x = clip_moves(precondition(cfg.force_scale * out[:, :3] * weight[:, None]), cfg.max_move)
-        else:
-            delta_x = cfg.displacement_scale * out[:, :3]
-        f_hat = out[:, 3:] * weight[:, None]
-        x_gnn = x_init + delta_x
+        x_gnn = batch.x_init
+        for k in range(cfg.passes):
+            # a later pass reads its inputs at the garment the passes before it moved (forces,
+            # normals, body distances, edges there), held constant in the gradient: it learns to
+            # correct what it sees, and the earlier passes are trained through its move only
+            at = x_gnn if k == 0 else x_gnn.detach()
+            nodes, edges, graph = self.graph_inputs(batch, at)
+            out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), graph).to(at.dtype)
+            if cfg.displacement is Displacement.PRECONDITIONED:
+                precondition = self.solver.preconditioner(at.detach(), batch.cloth, bodies=batch.bodies,
+                                                          body_index=batch.body_index)
+                delta_x = clip_moves(precondition(cfg.force_scale * out[:, :3] * weight[:, None]), cfg.max_move)
+            else:
+                delta_x = cfg.displacement_scale * out[:, :3]
+            x_gnn = x_gnn + delta_x
+        f_hat = out[:, 3:] * weight[:, None]  # the last pass's
         return self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)
 
     def physics_only(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
