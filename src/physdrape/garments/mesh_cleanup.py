@@ -220,4 +220,3 @@ def repair_moved_mesh(verts: np.ndarray, faces: np.ndarray, *, min_edge: float,
     """
     v, f = collapse_short_edges(verts, faces, min_edge)
     return v, flip_to_delaunay(v, f, fold_area_ratio=fold_area_ratio)
-
