@@ -267,7 +267,7 @@ def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_number
     """On a closed surface a probe whose outward ray crosses nothing has winding number 0: the
     doubtful faces found with that filter are those the winding number of every probe gives
     (overlapping spheres, and the same with a hole, where every probe gets its winding number)."""
-    from physdrape.geometry.proximity import _PROBE_OFFSET
+    from physdrape.geometry.doubtful_faces import PROBE_OFFSET
 
     a_verts, a_faces = icosphere(3, 0.15)
     b_verts, b_faces = icosphere(3, 0.10)
@@ -278,7 +278,7 @@ def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_number
     def by_winding_numbers_of_all(faces):
         surface = BodySurface(verts, faces)
         normals = surface._vertex_pseudo_normals()[0]
-        probe = (verts + _PROBE_OFFSET * normals).float().contiguous()
+        probe = (verts + PROBE_OFFSET * normals).float().contiguous()
         owner = torch.zeros(len(verts), dtype=torch.int32)
         buried = surface._search(probe, owner, winding=True)[1]
         buried[surface._border] = True

@@ -2,6 +2,8 @@
 central differences, on held planes and through the live body query), Gauss–Newton blocks are the
 Hessian on held planes, and the per-garment sums."""
 
+from functools import partial
+
 import numpy as np
 import pytest
 import torch
@@ -9,13 +11,14 @@ import trimesh
 
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import open_cylinder
-from physdrape.geometry.proximity import BodySurface
+from physdrape.geometry.proximity import BodySurface, SignMethod
 from physdrape.physics import Cloth
 from physdrape.physics.contact import (
     contact_energy,
     contact_hessian_blocks,
     contact_samples,
     contact_vertices,
+    follow_planes,
     garment_energy,
     penalty_contact_energy,
     plane_contact_blocks,
@@ -208,3 +211,53 @@ def test_energy_per_garment_and_the_centroid_share():
     flags = contact_vertices(distance, cloth.faces, margin=EPS)
     assert flags.nonzero().flatten().tolist() == sorted(cloth.faces[0].tolist())
     assert (contact_energy(torch.tensor([EPS, 1.0]), stiffness=K_C, margin=EPS) == 0).all()
+
+
+def _overlapping_spheres() -> BodySurface:
+    """A body of two overlapping spheres (a limb pressed into the torso): the pseudo-normal sign
+    is wrong inside the overlap, where a query takes the winding number."""
+    big, small = trimesh.creation.icosphere(3, radius=0.15), trimesh.creation.icosphere(3, radius=0.10)
+    verts = np.concatenate([big.vertices, small.vertices + [0.2, 0.0, 0.0]])
+    faces = np.concatenate([big.faces, small.faces + len(big.vertices)])
+    return BodySurface(torch.tensor(verts), torch.tensor(faces))
+
+
+@pytest.mark.parametrize("min_move", [0.0, 1.5e-3])
+def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_finds(min_move):
+    """`follow_planes` gives the samples within the band of their held planes (and moved farther
+    than min_move since found_at) the closest point, normal and face of `BodySurface.query` walking
+    from their held faces, the winding number's sign included where it is in doubt; the others
+    keep their planes; the change is each sample's penalty on the new plane minus the old one."""
+    body = _overlapping_spheres()
+    verts, faces = body.verts[0], body.faces  # a cloth hugging the body over the overlap, off it at the far side
+    normals = torch.tensor(trimesh.Trimesh(verts.numpy(), faces.numpy(), process=False).vertex_normals)
+    gen = torch.Generator().manual_seed(5)
+    offset = torch.where(verts[:, 0] < -0.05, 1e-2, 1e-3)[:, None]
+    x0 = verts + offset * normals + 1e-3 * torch.randn(verts.shape, generator=gen, dtype=torch.float64)
+    held = query_samples(x0, faces, body, None)
+    x = x0 + 2e-3 * torch.randn(x0.shape, generator=gen, dtype=torch.float64)
+    band = 4e-3
+    out = follow_planes(x, faces, held.closest, held.normal, held.face, contact_samples(x0, faces), body, None,
+                        band=band, min_move=min_move, stiffness=K_C, margin=EPS)
+    samples = contact_samples(x, faces)
+    before = ((samples - held.closest) * held.normal).sum(-1)
+    follow = before < band
+    if min_move:
+        follow &= (samples - contact_samples(x0, faces)).norm(dim=-1) > min_move
+    rows = torch.nonzero(follow)[:, 0]
+    assert 500 < rows.numel() < samples.shape[0] - 500  # both kinds of samples occur
+    want = body.query(samples[rows], near=held.face[rows])
+    assert torch.equal(out.face[rows], want.face)
+    torch.testing.assert_close(out.closest[rows], want.closest, rtol=0, atol=1e-12)
+    torch.testing.assert_close(out.normal[rows], want.normal, rtol=0, atol=1e-12)
+    torch.testing.assert_close(out.found_at[rows], samples[rows], rtol=0, atol=1e-15)
+    kept = torch.nonzero(~follow)[:, 0]
+    assert torch.equal(out.closest[kept], held.closest[kept]) and torch.equal(out.normal[kept], held.normal[kept])
+    assert torch.equal(out.face[kept], held.face[kept]) and not out.change[kept].any()
+    after = ((samples[rows] - want.closest) * want.normal).sum(-1)
+    penalty = partial(contact_energy, stiffness=K_C, margin=EPS)
+    torch.testing.assert_close(out.change[rows], penalty(after) - penalty(before[rows]), rtol=1e-12, atol=1e-18)
+    # the winding number mattered: without it some followed samples in the overlap get the other sign
+    pseudo = BodySurface(body.verts, faces, sign_method=SignMethod.PSEUDO_NORMAL)
+    wrong = pseudo.query(samples[rows], near=held.face[rows])
+    assert ((wrong.normal * want.normal).sum(-1) < 0).sum() > 10

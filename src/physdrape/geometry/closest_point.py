@@ -34,12 +34,15 @@ from torch import Tensor
 
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["SurfacePoints", "closest_point_on_indexed_triangles", "closest_point_on_triangle", "closest_surface_points",
+#: Most moves of a walk over the triangles' rings (`walk_to_closest_faces`).
+WALK_MOVES = 4
+
+__all__ = ["WALK_MOVES", "SurfaceArrays", "SurfacePoints", "closest_point_on_indexed_triangles", "closest_point_on_triangle", "closest_surface_points",
            "walk_to_closest_faces"]
 
 
 @defined_once
-def _kernels() -> dict:
+def kernels() -> dict:
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()
     f64 = wp.float64
@@ -128,22 +131,19 @@ def _kernels() -> dict:
             n = vertex_normals[b, faces[f, k]]
         return n
 
-    @wp.kernel
-    def surface_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
-                       body: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), num_verts: wp.int32,
-                       faces: wp.array2d(dtype=wp.int32), face_normals: wp.array2d(dtype=wp.vec3d),
-                       edge_normals: wp.array3d(dtype=wp.vec3d), vertex_normals: wp.array2d(dtype=wp.vec3d),
-                       near_tol: wp.float64, closest: wp.array(dtype=wp.vec3d), bary: wp.array(dtype=wp.vec3d),
-                       normal: wp.array(dtype=wp.vec3d), distance: wp.array(dtype=wp.float64),
-                       flags: wp.array(dtype=wp.int32)):
-        i = wp.tid()
-        b = body[i]
-        f = face[i]
+    @wp.func
+    def surface_point(x: wp.vec3d, verts: wp.array(dtype=wp.vec3d), b: wp.int32, f: wp.int32, num_verts: wp.int32,
+                      faces: wp.array2d(dtype=wp.int32), face_normals: wp.array2d(dtype=wp.vec3d),
+                      edge_normals: wp.array3d(dtype=wp.vec3d), vertex_normals: wp.array2d(dtype=wp.vec3d),
+                      near_tol: wp.float64):
+        """Point x against face f of body b: the closest point p, its barycentrics, the normal
+        (x − p)/|x − p| signed by the pseudo-normal of the feature p lies on, or that pseudo-normal
+        within near_tol, the signed distance (x − p)·normal, and flags (1: inside by the
+        pseudo-normal's sign, 2: within near_tol)."""
         row = b * num_verts
         a = verts[row + faces[f, 0]]
         bb = verts[row + faces[f, 1]]
         c = verts[row + faces[f, 2]]
-        x = points[i]
         w = closest_bary(x, a, bb, c)
         p = w[0] * a + w[1] * bb + w[2] * c
         pseudo = feature_normal(w, b, f, faces, face_normals, edge_normals, vertex_normals)
@@ -153,11 +153,24 @@ def _kernels() -> dict:
         near = dist <= near_tol
         sign = wp.where(inside, f64(-1.0), f64(1.0))
         n = wp.where(near, pseudo, (sign * ratio(f64(1.0), dist)) * r)
+        return p, w, n, wp.dot(r, n), wp.where(inside, 1, 0) + wp.where(near, 2, 0)
+
+    @wp.kernel
+    def surface_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
+                       body: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), num_verts: wp.int32,
+                       faces: wp.array2d(dtype=wp.int32), face_normals: wp.array2d(dtype=wp.vec3d),
+                       edge_normals: wp.array3d(dtype=wp.vec3d), vertex_normals: wp.array2d(dtype=wp.vec3d),
+                       near_tol: wp.float64, closest: wp.array(dtype=wp.vec3d), bary: wp.array(dtype=wp.vec3d),
+                       normal: wp.array(dtype=wp.vec3d), distance: wp.array(dtype=wp.float64),
+                       flags: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        p, w, n, d, flag = surface_point(points[i], verts, body[i], face[i], num_verts, faces, face_normals,
+                                         edge_normals, vertex_normals, near_tol)
         closest[i] = p
         bary[i] = w
         normal[i] = n
-        distance[i] = wp.dot(r, n)
-        flags[i] = wp.where(inside, 1, 0) + wp.where(near, 2, 0)
+        distance[i] = d
+        flags[i] = flag
 
     @wp.func
     def distance_sq(x: wp.vec3d, verts: wp.array(dtype=wp.vec3d), row: wp.int32, faces: wp.array2d(dtype=wp.int32),
@@ -169,15 +182,12 @@ def _kernels() -> dict:
         r = x - (w[0] * a + w[1] * b + w[2] * c)
         return wp.dot(r, r)
 
-    @wp.kernel
-    def walk_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
-                    body: wp.array(dtype=wp.int32), start: wp.array(dtype=wp.int32), num_verts: wp.int32,
-                    faces: wp.array2d(dtype=wp.int32), rings: wp.array2d(dtype=wp.int32), max_moves: wp.int32,
-                    face: wp.array(dtype=wp.int32)):
-        i = wp.tid()
-        row = body[i] * num_verts
-        x = points[i]
-        best = start[i]
+    @wp.func
+    def walk(x: wp.vec3d, verts: wp.array(dtype=wp.vec3d), row: wp.int32, faces: wp.array2d(dtype=wp.int32),
+             rings: wp.array2d(dtype=wp.int32), start: wp.int32, max_moves: wp.int32):
+        """The closest triangle to x found by walking from `start` over the rings (of the body
+        whose vertices start at `row`): `walk_to_closest_faces`."""
+        best = start
         best_d = distance_sq(x, verts, row, faces, best)
         for _move in range(max_moves):
             centre = best
@@ -190,9 +200,18 @@ def _kernels() -> dict:
                         best = g
             if best == centre:
                 break
-        face[i] = best
+        return best
 
-    return {"wp": wp, "closest": closest_kernel, "surface": surface_kernel, "walk": walk_kernel}
+    @wp.kernel
+    def walk_kernel(points: wp.array(dtype=wp.vec3d), verts: wp.array(dtype=wp.vec3d),
+                    body: wp.array(dtype=wp.int32), start: wp.array(dtype=wp.int32), num_verts: wp.int32,
+                    faces: wp.array2d(dtype=wp.int32), rings: wp.array2d(dtype=wp.int32), max_moves: wp.int32,
+                    face: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        face[i] = walk(points[i], verts, body[i] * num_verts, faces, rings, start[i], max_moves)
+
+    return {"wp": wp, "closest": closest_kernel, "surface": surface_kernel, "walk": walk_kernel,
+            "surface_point": surface_point, "walk_func": walk}
 
 
 def _vec3(wp, t: Tensor):
@@ -211,11 +230,11 @@ class _ClosestPoint(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, points: Tensor, verts: Tensor, corners: Tensor) -> tuple[Tensor, Tensor]:
-        wp = _kernels()["wp"]
+        wp = kernels()["wp"]
         closest, bary = torch.empty_like(points), torch.empty_like(points)
         if points.shape[0]:
             with torch_stream(points.device):
-                wp.launch(_kernels()["closest"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                wp.launch(kernels()["closest"], dim=points.shape[0], device=wp.device_from_torch(points.device),
                           inputs=[_vec3(wp, points), _vec3(wp, verts), _int2d(wp, corners)],
                           outputs=[_vec3(wp, closest), _vec3(wp, bary)])
         ctx.save_for_backward(points, verts, corners)
@@ -227,13 +246,13 @@ class _ClosestPoint(torch.autograd.Function):
             raise RuntimeError("the closest point is differentiable once: its backward cannot be "
                                "differentiated again (create_graph=True, torch.func.hessian)")
         points, verts, corners = ctx.saved_tensors
-        wp = _kernels()["wp"]
+        wp = kernels()["wp"]
         grad_points, grad_verts = torch.zeros_like(points), torch.zeros_like(verts)
         grads = [torch.zeros_like(points) if g is None else g.to(torch.float64).contiguous()
                  for g in (grad_closest, grad_bary)]
         if points.shape[0]:
             with torch_stream(points.device):
-                wp.launch(_kernels()["closest"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                wp.launch(kernels()["closest"], dim=points.shape[0], device=wp.device_from_torch(points.device),
                           inputs=[_vec3(wp, points), _vec3(wp, verts), _int2d(wp, corners)],
                           outputs=[_vec3(wp, torch.empty_like(points)), _vec3(wp, torch.empty_like(points))],
                           adj_inputs=[_vec3(wp, grad_points), _vec3(wp, grad_verts), _int2d(wp, corners)],
@@ -285,6 +304,31 @@ def closest_point_on_triangle(x: Tensor, a: Tensor, b: Tensor, c: Tensor) -> tup
 
 
 @dataclass(frozen=True)
+class SurfaceArrays:
+    """Bodies' surfaces as the walk and the closest-point kernels read them (float64, int32,
+    contiguous; `BodySurface.walk_arrays`): the vertices flattened (B · N, 3), the triangles
+    (F, 3), each triangle's ring (F, W) padded with F, the face (B, F, 3), edge (B, F, 3, 3) and
+    vertex (B, N, 3) pseudo-normals, N, and the distance [m] within which a point counts as on
+    the surface (`closest_surface_points`)."""
+
+    verts: Tensor
+    faces: Tensor
+    rings: Tensor
+    face_normals: Tensor
+    edge_normals: Tensor
+    vertex_normals: Tensor
+    num_verts: int
+    near_tol: float
+
+    def launch_args(self, wp, max_moves: int) -> list:
+        """The arrays as launch arguments, in the order the follow kernel takes them
+        (`physics.contact_kernels`)."""
+        return [_vec3(wp, self.verts), int(self.num_verts), _int2d(wp, self.faces), _int2d(wp, self.rings),
+                int(max_moves), _vec3(wp, self.face_normals), _vec3(wp, self.edge_normals),
+                _vec3(wp, self.vertex_normals), float(self.near_tol)]
+
+
+@dataclass(frozen=True)
 class SurfacePoints:
     """Closest points on indexed triangles with their normals (`closest_surface_points`); float64,
     leading shape (M,).
@@ -313,14 +357,14 @@ class _SurfacePoints(torch.autograd.Function):
     @staticmethod
     def forward(ctx, points: Tensor, verts: Tensor, body: Tensor, face: Tensor, num_verts: int, faces: Tensor,
                 normals: tuple[Tensor, Tensor, Tensor], near_tol: float):
-        wp = _kernels()["wp"]
+        wp = kernels()["wp"]
         m = points.shape[0]
         closest, bary, normal = (torch.empty_like(points) for _ in range(3))
         distance = torch.empty(m, dtype=torch.float64, device=points.device)
         flags = torch.empty(m, dtype=torch.int32, device=points.device)
         if m:
             with torch_stream(points.device):
-                wp.launch(_kernels()["surface"], dim=m, device=wp.device_from_torch(points.device),
+                wp.launch(kernels()["surface"], dim=m, device=wp.device_from_torch(points.device),
                           inputs=_surface_inputs(wp, points, verts, body, face, num_verts, faces, normals, near_tol),
                           outputs=[_vec3(wp, closest), _vec3(wp, bary), _vec3(wp, normal),
                                    launch_arg(distance, wp.float64), launch_arg(flags, wp.int32)])
@@ -335,7 +379,7 @@ class _SurfacePoints(torch.autograd.Function):
             raise RuntimeError("the closest point is differentiable once: its backward cannot be "
                                "differentiated again (create_graph=True, torch.func.hessian)")
         points, verts, body, face, faces, *normals = ctx.saved_tensors
-        wp = _kernels()["wp"]
+        wp = kernels()["wp"]
         grad_points, grad_verts = torch.zeros_like(points), torch.zeros_like(verts)
         grads = [torch.zeros_like(points) if g is None else g.to(torch.float64).contiguous()
                  for g in (grad_closest, grad_bary, grad_normal)]
@@ -348,7 +392,7 @@ class _SurfacePoints(torch.autograd.Function):
                 inputs = _surface_inputs(wp, points, verts, body, face, ctx.num_verts, faces, normals, ctx.near_tol)
                 adj_inputs = _surface_inputs(wp, grad_points, grad_verts, body, face, ctx.num_verts, faces, scratch,
                                              ctx.near_tol)
-                wp.launch(_kernels()["surface"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+                wp.launch(kernels()["surface"], dim=points.shape[0], device=wp.device_from_torch(points.device),
                           inputs=inputs, outputs=[*(_vec3(wp, torch.empty_like(points)) for _ in range(3)),
                                                   launch_arg(torch.empty_like(grad_distance), wp.float64),
                                                   launch_arg(flags, wp.int32)],
@@ -396,7 +440,7 @@ def closest_surface_points(points: Tensor, verts: Tensor, body: Tensor, face: Te
 
 
 def walk_to_closest_faces(points: Tensor, verts: Tensor, body: Tensor, start: Tensor, faces: Tensor,
-                          rings: Tensor, *, num_verts: int, max_moves: int = 4) -> Tensor:
+                          rings: Tensor, *, num_verts: int, max_moves: int = WALK_MOVES) -> Tensor:
     """The closest triangle of each point near a triangle it starts from: the start and its ring
     (the triangles that share a vertex with it) are tested, the closest becomes the next start,
     until the start stays (or after `max_moves` moves). A local search, in one launch: it ends on
@@ -415,11 +459,11 @@ def walk_to_closest_faces(points: Tensor, verts: Tensor, body: Tensor, start: Te
     Returns:
         face: (M,) int32; of equally close triangles the first found (deterministic).
     """
-    wp = _kernels()["wp"]
+    wp = kernels()["wp"]
     face = torch.empty(points.shape[0], dtype=torch.int32, device=points.device)
     if points.shape[0]:
         with torch_stream(points.device):
-            wp.launch(_kernels()["walk"], dim=points.shape[0], device=wp.device_from_torch(points.device),
+            wp.launch(kernels()["walk"], dim=points.shape[0], device=wp.device_from_torch(points.device),
                       inputs=[_vec3(wp, points), _vec3(wp, verts), launch_arg(body, wp.int32),
                               launch_arg(start, wp.int32), int(num_verts), _int2d(wp, faces), _int2d(wp, rings),
                               int(max_moves)],

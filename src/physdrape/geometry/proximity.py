@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import enum
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,9 +62,11 @@ from torch import Tensor
 
 from physdrape.geometry.body_bvh import BodyBVH
 from physdrape.geometry.closest_point import (
+    SurfaceArrays,
     closest_surface_points,
     walk_to_closest_faces,
 )
+from physdrape.geometry.doubtful_faces import DOUBT_RADIUS_EDGES, doubtful_faces
 from physdrape.geometry.normals import (
     angle_weighted_vertex_normals,
     triangle_normals,
@@ -101,12 +104,6 @@ class SignMethod(str, enum.Enum):
     PSEUDO_NORMAL = "pseudo_normal"
 
 
-#: How far from a buried vertex (or a hole) the pseudo-normal sign is in doubt, in multiples of
-#: the body's longest edge: a face that another part of the body crosses has a vertex of that part
-#: inside the body within about two edge lengths of its own vertices.
-DOUBT_RADIUS_EDGES = 3.0
-#: A body vertex is buried when the point this far [m] out along its normal is inside the body.
-_PROBE_OFFSET = 1e-4
 
 
 @functools.lru_cache(maxsize=8)
@@ -291,16 +288,8 @@ class BodySurface:
 
     @torch.no_grad()
     def doubtful_faces(self) -> Tensor:
-        """Faces near which the pseudo-normal sign may be wrong, shape (B, Fb) bool; computed once
-        per body position (until `update`).
-
-        A body vertex is *buried* when a point just outside it (`_PROBE_OFFSET` along its normal)
-        has winding number > 0.5: another part of the body covers it (posed limbs that
-        interpenetrate). Vertices on the border of a hole count as buried too. A face is doubtful
-        when one of its vertices lies within `DOUBT_RADIUS_EDGES` of the body's longest edge of a
-        buried vertex. Away from doubtful faces the surface is one closed, consistently oriented
-        sheet, on which the pseudo-normal of the closest feature gives the exact sign.
-        """
+        """Faces near which the pseudo-normal sign may be wrong, shape (B, Fb) bool
+        (`geometry.doubtful_faces`); computed once per body position (until `update`)."""
         if self._doubtful is not None:
             return self._doubtful
         if self._selected_from is not None:  # found once for the whole batch
@@ -309,33 +298,9 @@ class BodySurface:
             return self._doubtful
         if self.sign_method is not SignMethod.WINDING_NUMBER:
             raise ValueError("doubtful_faces needs sign_method=WINDING_NUMBER")
-        verts = self.verts.detach()
-        num_bodies, num_verts = verts.shape[:2]
-        normals = self._vertex_pseudo_normals().reshape(-1, 3)
-        probe = (verts.reshape(-1, 3) + _PROBE_OFFSET * normals).to(torch.float32).contiguous()
-        owner = torch.arange(num_bodies, dtype=torch.int32, device=verts.device).repeat_interleave(num_verts)
-        if self._border.numel():  # a hole: the winding number of every probe
-            buried = self._search(probe, owner, winding=True)[1]
-        else:
-            # On a closed surface the winding number at a point is the signed count of the surface's
-            # crossings along any ray from it: a probe whose outward ray crosses nothing has winding
-            # number 0 and is not buried. Only the others (about a sixth of an Anny body's) need the
-            # winding number, which costs several times a ray.
-            crossed = torch.nonzero(self._bvh.ray_hits(probe, owner, normals.to(torch.float32).contiguous(),
-                                                       threads=self.search_threads))[:, 0]
-            buried = torch.zeros(probe.shape[0], dtype=torch.bool, device=verts.device)
-            if crossed.numel():
-                buried[crossed] = self._search(probe[crossed].contiguous(), owner[crossed].contiguous(), winding=True)[1]
-        buried = buried.reshape(num_bodies, num_verts)
-        buried[:, self._border] = True
-        edges = verts[:, self.faces] - verts[:, self.faces.roll(1, dims=1)]  # (B, Fb, 3, 3)
-        radius = DOUBT_RADIUS_EDGES * edges.norm(dim=-1).amax(dim=(1, 2))  # (B,)
-        near = torch.zeros(num_bodies, num_verts, dtype=torch.bool, device=verts.device)
-        for b in range(num_bodies):
-            centres = verts[b, buried[b]]
-            for start in range(0, centres.shape[0], 1024):  # bounded memory: (Vb, 1024) distances
-                near[b] |= torch.cdist(verts[b], centres[start:start + 1024]).amin(dim=1) <= radius[b]
-        self._doubtful = near[:, self.faces].any(dim=-1)
+        self._doubtful = doubtful_faces(self.verts.detach(), self.faces, self._vertex_pseudo_normals(), self._border,
+                                        self._bvh, threads=self.search_threads,
+                                        winding_accuracy=self.winding_accuracy)
         return self._doubtful
 
     def expect(self, points: int) -> None:
@@ -419,24 +384,15 @@ class BodySurface:
                                     face.to(torch.int32).contiguous(), self._faces32, *self._feature_normals(),
                                     near_tol=self.near_tol)
         inside, n, d = on.inside, on.normal, on.signed_distance  # the pseudo-normal's sign
-        if self.sign_method is SignMethod.WINDING_NUMBER:
+        sign = self.winding_sign(x32.__getitem__, body32, face, inside, on.near)
+        if sign is not None:
+            doubt, inside_doubt, flip_doubt = sign
             with torch.no_grad():
-                # Finding the doubtful faces costs a winding number per body vertex: until this
-                # surface has been asked about that many points, the winding number of every point
-                # is cheaper.
-                self._points_asked += x.shape[0]
-                if self._doubtful is None and self._points_asked < self.verts.shape[0] * self.verts.shape[1]:
-                    doubt = torch.arange(x.shape[0], device=x.device)
-                else:
-                    doubt = torch.nonzero(self.doubtful_faces()[body, face])[:, 0]
-                if doubt.numel():
-                    _, wn_inside = self._search(x32[doubt], body32[doubt], winding=True)
-                    flip = torch.ones_like(d)  # off the surface the normal points away from the inside
-                    flip[doubt] = 1.0 - 2.0 * ((wn_inside != inside[doubt]) & ~on.near[doubt]).to(flip.dtype)
-                    inside = inside.clone()
-                    inside[doubt] = wn_inside
-            if doubt.numel():
-                n, d = n * flip[:, None], d * flip
+                flip = torch.ones_like(d)
+                flip[doubt] = flip_doubt.to(flip.dtype)
+                inside = inside.clone()
+                inside[doubt] = inside_doubt
+            n, d = n * flip[:, None], d * flip
         p, bary = on.closest.to(x.dtype), on.bary.to(x.dtype)
         n, d = n.to(x.dtype), d.to(x.dtype)
         return SurfaceQuery(
@@ -447,6 +403,45 @@ class BodySurface:
             bary=bary.reshape(*lead, 3),
             inside=inside.reshape(lead),
         )
+
+    @torch.no_grad()
+    def in_doubt(self, face: Tensor, body: Tensor) -> Tensor:
+        """Whether the pseudo-normal sign is in doubt (`query` takes the winding number) at points
+        whose closest faces are `face` of bodies `body`, (M,) int each → (M,) bool: near a doubtful
+        face; or every point while this surface has been asked about fewer points than its bodies
+        have vertices (finding the doubtful faces costs a winding number per body vertex: until
+        then the winding number of every point is cheaper). Counts the M points as asked."""
+        self._points_asked += face.shape[0]
+        if self._doubtful is None and self._points_asked < self.verts.shape[0] * self.verts.shape[1]:
+            return torch.ones(face.shape, dtype=torch.bool, device=face.device)
+        return self.doubtful_faces()[body.long(), face.long()]
+
+    @torch.no_grad()
+    def winding_sign(self, points32: Callable[[Tensor], Tensor], body: Tensor, face: Tensor, inside: Tensor,
+                     near: Tensor) -> tuple[Tensor, Tensor, Tensor] | None:
+        """The winding number's sign where the pseudo-normal's is in doubt (`in_doubt`), for M
+        points of bodies `body` (M,) int32 whose closest faces are `face` (M,), and whose closest
+        points' pseudo-normals call them `inside` (M,) bool, within near_tol of the surface where
+        `near` (M,) bool; points32(rows) gives the rows' points (R, 3) float32 (formed only for the
+        rows in doubt). Returns the rows in doubt, their winding number inside flags and their sign
+        flips (−1 where the winding number disagrees off the surface: the normal and the signed
+        distance change sign; +1 elsewhere), or None with ``SignMethod.PSEUDO_NORMAL`` or no row in
+        doubt."""
+        if self.sign_method is not SignMethod.WINDING_NUMBER:
+            return None
+        doubt = torch.nonzero(self.in_doubt(face, body))[:, 0]
+        if not doubt.numel():
+            return None
+        _, wn_inside = self._search(points32(doubt).contiguous(), body[doubt].contiguous(), winding=True)
+        # off the surface the normal points away from the inside
+        flip = 1 - 2 * ((wn_inside != inside[doubt]) & ~near[doubt]).to(torch.int8)
+        return doubt, wn_inside, flip
+
+    def walk_arrays(self) -> SurfaceArrays:
+        """The arrays a kernel that walks over these bodies and projects onto them reads
+        (`closest_point.SurfaceArrays`; not differentiated)."""
+        return SurfaceArrays(self._flat_verts64().detach(), self._faces32, self._rings, *self._feature_normals(),
+                             self.num_verts, self.near_tol)
 
     def _start_faces(self, near: Tensor, lead: tuple) -> Tensor:
         """`query`'s `near` checked (one body face per point) and flattened to int32."""

@@ -14,8 +14,8 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
-    contact_energy,
     contact_samples,
+    follow_planes,
     garment_energy,
     plane_contact_blocks,
     plane_contact_forces,
@@ -408,27 +408,14 @@ class _Relaxation:
                     self._found_at = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
                 change = None
             else:
-                samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
-                # each sample's distance to its held plane, as `plane_distance` forms it
-                before = ((samples - self.planes[0]) * self.planes[1]).sum(-1)
-                near = before < self.band
+                found_at = self.planes[0] if self._found_at is None else self._found_at
+                new = follow_planes(x, self.cloth.faces, *self.planes, self._faces, found_at, bodies, body_index,
+                                    band=self.band, min_move=self.min_move, stiffness=self.stiffness,
+                                    margin=self.margin)
+                self.planes, self._faces = (new.closest, new.normal), new.face
                 if self._found_at is not None:
-                    near &= (samples - self._found_at).norm(dim=-1) > self.min_move
-                near = torch.nonzero(near)[:, 0]
-                penalty = torch.zeros_like(before)
-                if near.numel():
-                    q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, rows=near,
-                                      near=self._faces[near])
-                    closest, normal = self.planes[0].clone(), self.planes[1].clone()
-                    closest[near], normal[near] = q.closest.to(torch.float64), q.normal.to(torch.float64)
-                    self.planes, self._faces = (closest, normal), self._faces.index_put((near,), q.face)
-                    if self._found_at is not None:
-                        self._found_at = self._found_at.index_put((near,), samples[near])
-                    # the followed samples' distances to their new planes, as `plane_distance` forms them
-                    after = ((samples[near] - closest[near]) * normal[near]).sum(-1)
-                    energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
-                    penalty[near] = energy(after) - energy(before[near])
-                change = garment_energy(penalty, self.cloth)
+                    self._found_at = new.found_at
+                change = garment_energy(new.change, self.cloth)
         self._potential.hold(self.planes)
         return change
 

@@ -20,14 +20,18 @@ several times per step.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
+from physdrape.geometry.closest_point import WALK_MOVES
 from physdrape.physics import contact_kernels
 from physdrape.physics.element_kernels import run_kernel
 from physdrape.tensor_memo import TensorMemo
+from physdrape.warp_runtime import launch_arg, torch_stream, warp
 
 if TYPE_CHECKING:
     from physdrape.geometry.proximity import BodySurface, SurfaceQuery
@@ -68,6 +72,78 @@ def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tens
     if rows is not None:
         samples, index = samples[rows], None if index is None else index[rows]
     return bodies.query(samples, body_index=index, near=near)
+
+
+@dataclass(frozen=True)
+class FollowedPlanes:
+    """The samples' planes after `follow_planes`, (V + F, ...) each: closest points and unit
+    normals (float64), body faces (int64), where each sample was when its plane was found
+    (float64), and the change of the penalty k_c ReLU(ε − d)³ at the sample [J] that its new
+    plane makes (float64; 0 where the plane was kept)."""
+
+    closest: Tensor
+    normal: Tensor
+    face: Tensor
+    found_at: Tensor
+    change: Tensor
+
+
+@torch.no_grad()
+def follow_planes(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor,
+                  bodies: BodySurface, vert_body: Tensor | None, *, band: float, min_move: float, stiffness: float,
+                  margin: float) -> FollowedPlanes:
+    """The held planes of the samples of x (V, 3) [m] that lie closer to their plane (closest,
+    normal, (V + F, 3)) than `band` [m] found again: the closest body face by a walk from the
+    plane's body face (`face`, (V + F,)), and the closest point and normal there, as
+    `BodySurface.query(near=...)` finds them, in one launch for all samples. With min_move > 0
+    [m] only the samples that also moved farther than that since they were at `found_at` (V + F,
+    3) follow. vert_body: each vertex's body (V,) (None: the surface holds one body).
+
+    Where the pseudo-normal's sign is in doubt at the new face, the winding number's decides
+    (`BodySurface.winding_sign`), as in a query.
+    """
+    num_samples = x.shape[0] + faces.shape[0]
+    x64 = x.detach().to(torch.float64).reshape(1, -1, 3).contiguous()
+    body = (torch.zeros(num_samples, dtype=torch.int32, device=x.device) if vert_body is None
+            else sample_index(vert_body, faces).to(torch.int32).contiguous())
+    closest, normal = closest.to(torch.float64).contiguous(), normal.to(torch.float64).contiguous()
+    found_at = found_at.to(torch.float64).contiguous()
+    face32 = face.to(torch.int32).contiguous()
+    out = [torch.empty_like(closest), torch.empty_like(normal), torch.empty_like(face32), torch.empty_like(found_at),
+           torch.empty(num_samples, dtype=torch.float64, device=x.device),
+           torch.empty(num_samples, dtype=torch.int32, device=x.device)]
+    wp = warp()
+    if num_samples:
+        vec3, f64, i32 = wp.vec3d, wp.float64, wp.int32
+        with torch_stream(x.device):
+            wp.launch(contact_kernels.kernels()["follow"], dim=num_samples, device=wp.device_from_torch(x.device),
+                      inputs=[launch_arg(x64, vec3),
+                              launch_arg(sample_corners(faces, x.shape[0]), i32),
+                              launch_arg(closest, vec3), launch_arg(normal, vec3), launch_arg(face32, i32),
+                              launch_arg(found_at, vec3), launch_arg(body, i32), float(band), float(min_move),
+                              float(stiffness), float(margin), *bodies.walk_arrays().launch_args(wp, WALK_MOVES)],
+                      outputs=[launch_arg(out[0], vec3), launch_arg(out[1], vec3), launch_arg(out[2], i32),
+                               launch_arg(out[3], vec3), launch_arg(out[4], f64), launch_arg(out[5], i32)])
+    new_closest, new_normal, new_face, new_found, change, followed = out
+    new_face = new_face.to(torch.int64)
+    rows = torch.nonzero(followed)[:, 0]
+    if rows.numel():  # the winding number's sign where it is in doubt, as a query takes it
+        flags = followed[rows]
+
+        def points32(doubt: Tensor) -> Tensor:
+            return contact_samples(x64[0], faces)[rows[doubt]].to(torch.float32)
+
+        sign = bodies.winding_sign(points32, body[rows], new_face[rows], (flags & 2).bool(), (flags & 4).bool())
+        if sign is not None:
+            flipped = rows[sign[0][sign[2] < 0]]
+            if flipped.numel():
+                new_normal[flipped] = -new_normal[flipped]
+                points = contact_samples(x64[0], faces)[flipped]
+                before = ((points - closest[flipped]) * normal[flipped]).sum(-1)
+                after = ((points - new_closest[flipped]) * new_normal[flipped]).sum(-1)
+                energy = partial(contact_energy, stiffness=stiffness, margin=margin)
+                change[flipped] = energy(after) - energy(before)
+    return FollowedPlanes(new_closest, new_normal, new_face, new_found, change)
 
 
 def contact_depth(distance: Tensor, *, margin: float) -> Tensor:

@@ -8,6 +8,9 @@ times the arithmetic; here each is one launch with one thread per sample, summin
 vertices atomically, on the CPU or on CUDA. The energy k_c ReLU(ε − d)³ of the distances is
 `contact.contact_energy` in torch (what the training loss differentiates) and `penalty` here (the
 solver's line-search potential, `physics.potential`, checked against the torch one in its tests).
+The follow kernel finds the planes of the samples near the body again by a walk over the body's
+triangles from their last ones (`contact.follow_planes`), with the geometry kernels' functions
+(`geometry.closest_point`).
 
 A sample is given by its row of the corner table (`contact.sample_corners`): a vertex sample
 repeats its vertex three times, a centroid sample names its face's corners. Its point is the
@@ -18,6 +21,7 @@ equally by its corners (∂s/∂x_a = I/3).
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
 
+from physdrape.geometry import closest_point
 from physdrape.warp_runtime import defined_once, warp
 
 
@@ -28,13 +32,17 @@ def kernels() -> dict:
     f64 = wp.float64
 
     @wp.func
+    def sample_point(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32), b: int, s: int):
+        """Sample s of batch row b: its vertex, or its face's centroid."""
+        a = corners[s, 0]
+        centroid = (x[b, a] + x[b, corners[s, 1]] + x[b, corners[s, 2]]) / f64(3.0)
+        return wp.where(a == corners[s, 1], x[b, a], centroid)
+
+    @wp.func
     def plane_distance(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
                        closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), b: int, s: int):
         """d = (s − p)·n of sample s of batch row b."""
-        a = corners[s, 0]
-        centroid = (x[b, a] + x[b, corners[s, 1]] + x[b, corners[s, 2]]) / f64(3.0)
-        point = wp.where(a == corners[s, 1], x[b, a], centroid)
-        return wp.dot(point - closest[s], normal[s])
+        return wp.dot(sample_point(x, corners, b, s) - closest[s], normal[s])
 
     @wp.func
     def penalty(d: wp.float64, stiffness: wp.float64, margin: wp.float64):
@@ -92,5 +100,51 @@ def kernels() -> dict:
                 wp.atomic_add(out, b, c, share)
                 wp.atomic_add(out, b, corners[s, 2], share)
 
-    return {"distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel,
+    geometry = closest_point.kernels()
+    walk, surface_point = geometry["walk_func"], geometry["surface_point"]
+
+    @wp.kernel(enable_backward=False)
+    def follow_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
+                      closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
+                      face: wp.array(dtype=wp.int32), found_at: wp.array(dtype=wp.vec3d),
+                      sample_body: wp.array(dtype=wp.int32), band: wp.float64, min_move: wp.float64,
+                      stiffness: wp.float64, margin: wp.float64,
+                      verts: wp.array(dtype=wp.vec3d), num_verts: wp.int32, faces: wp.array2d(dtype=wp.int32),
+                      rings: wp.array2d(dtype=wp.int32), max_moves: wp.int32,
+                      face_normals: wp.array2d(dtype=wp.vec3d), edge_normals: wp.array3d(dtype=wp.vec3d),
+                      vertex_normals: wp.array2d(dtype=wp.vec3d), near_tol: wp.float64,
+                      out_closest: wp.array(dtype=wp.vec3d), out_normal: wp.array(dtype=wp.vec3d),
+                      out_face: wp.array(dtype=wp.int32), out_found_at: wp.array(dtype=wp.vec3d),
+                      change: wp.array(dtype=wp.float64), followed: wp.array(dtype=wp.int32)):
+        """A sample within `band` of its plane (and, with min_move > 0, moved farther than that
+        since `found_at`) walks from its plane's body face to the closest one and takes the plane
+        there (the closest point and the normal by the pseudo-normal's sign, as `BodySurface.query`
+        finds them before its winding-number check); `change` is its penalty on the new plane
+        minus that on the old one. The others keep theirs (change 0, followed 0)."""
+        s = wp.tid()
+        point = sample_point(x, corners, 0, s)
+        before = wp.dot(point - closest[s], normal[s])
+        follow = before < band
+        if min_move > f64(0.0):
+            follow = follow and wp.length(point - found_at[s]) > min_move
+        if follow:
+            b = sample_body[s]
+            f = walk(point, verts, b * num_verts, faces, rings, face[s], max_moves)
+            p, _bary, n, d, flags = surface_point(point, verts, b, f, num_verts, faces, face_normals, edge_normals,
+                                                  vertex_normals, near_tol)
+            out_closest[s] = p
+            out_normal[s] = n
+            out_face[s] = f
+            out_found_at[s] = point
+            change[s] = penalty(d, stiffness, margin) - penalty(before, stiffness, margin)
+            followed[s] = 1 + 2 * flags  # 2: inside by the pseudo-normal's sign, 4: on the surface
+        else:
+            out_closest[s] = closest[s]
+            out_normal[s] = normal[s]
+            out_face[s] = face[s]
+            out_found_at[s] = found_at[s]
+            change[s] = f64(0.0)
+            followed[s] = 0
+
+    return {"follow": follow_kernel, "distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel,
             "plane_distance": plane_distance, "penalty": penalty}

@@ -1,0 +1,63 @@
+"""Where a body's pseudo-normal sign may be wrong: the faces near buried vertices and holes
+(`BodySurface.doubtful_faces`, which caches the result per body position)."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from physdrape.geometry.body_bvh import BodyBVH
+
+#: How far from a buried vertex (or a hole) the pseudo-normal sign is in doubt, in multiples of
+#: the body's longest edge: a face that another part of the body crosses has a vertex of that part
+#: inside the body within about two edge lengths of its own vertices.
+DOUBT_RADIUS_EDGES = 3.0
+#: A body vertex is buried when the point this far [m] out along its normal is inside the body.
+PROBE_OFFSET = 1e-4
+
+
+@torch.no_grad()
+def doubtful_faces(verts: Tensor, faces: Tensor, vertex_normals: Tensor, border: Tensor, bvh: BodyBVH, *,
+                   threads: int | None, winding_accuracy: float) -> Tensor:
+    """The faces (B, Fb) bool of bodies verts (B, Vb, 3) [m] (triangles faces (Fb, 3), unit
+    angle-weighted vertex normals (B, Vb, 3), the vertices on a hole's border, their BVHs built
+    with the winding number) near which the pseudo-normal sign may be wrong.
+
+    A body vertex is *buried* when a point just outside it (`PROBE_OFFSET` along its normal) has
+    winding number > 0.5: another part of the body covers it (posed limbs that interpenetrate).
+    Vertices on the border of a hole count as buried too. A face is doubtful when one of its
+    vertices lies within `DOUBT_RADIUS_EDGES` of the body's longest edge of a buried vertex. Away
+    from doubtful faces the surface is one closed, consistently oriented sheet, on which the
+    pseudo-normal of the closest feature gives the exact sign.
+    """
+    num_bodies, num_verts = verts.shape[:2]
+    normals = vertex_normals.reshape(-1, 3)
+    probe = (verts.reshape(-1, 3) + PROBE_OFFSET * normals).to(torch.float32).contiguous()
+    owner = torch.arange(num_bodies, dtype=torch.int32, device=verts.device).repeat_interleave(num_verts)
+
+    def winding_inside(rows: Tensor | None) -> Tensor:
+        points, body = (probe, owner) if rows is None else (probe[rows].contiguous(), owner[rows].contiguous())
+        return bvh.closest_faces(points, body, winding_accuracy=winding_accuracy, threads=threads, winding=True)[1]
+
+    if border.numel():  # a hole: the winding number of every probe
+        buried = winding_inside(None)
+    else:
+        # On a closed surface the winding number at a point is the signed count of the surface's
+        # crossings along any ray from it: a probe whose outward ray crosses nothing has winding
+        # number 0 and is not buried. Only the others (about a sixth of an Anny body's) need the
+        # winding number, which costs several times a ray.
+        crossed = torch.nonzero(bvh.ray_hits(probe, owner, normals.to(torch.float32).contiguous(),
+                                             threads=threads))[:, 0]
+        buried = torch.zeros(probe.shape[0], dtype=torch.bool, device=verts.device)
+        if crossed.numel():
+            buried[crossed] = winding_inside(crossed)
+    buried = buried.reshape(num_bodies, num_verts)
+    buried[:, border] = True
+    edges = verts[:, faces] - verts[:, faces.roll(1, dims=1)]  # (B, Fb, 3, 3)
+    radius = DOUBT_RADIUS_EDGES * edges.norm(dim=-1).amax(dim=(1, 2))  # (B,)
+    near = torch.zeros(num_bodies, num_verts, dtype=torch.bool, device=verts.device)
+    for b in range(num_bodies):
+        centres = verts[b, buried[b]]
+        for start in range(0, centres.shape[0], 1024):  # bounded memory: (Vb, 1024) distances
+            near[b] |= torch.cdist(verts[b], centres[start:start + 1024]).amin(dim=1) <= radius[b]
+    return near[:, faces].any(dim=-1)
