@@ -9,7 +9,8 @@ and `closest_point_on_triangle` compute the closest point alone, on triangles gi
 vertex table or by their corners (the garment sizing and the skinning transfer, on candidate
 triangles of their own); `walk_to_closest_faces` finds a point's closest triangle near one it
 starts from (a body query of points that moved a little, instead of the BVH search); the
-kernels share one closest-point function.
+kernels share one closest-point function, and the walk and the surface point are functions that
+the contact's plane-following kernel calls too (`physics.contact_kernels`).
 
 One kernel launch per call replaces a chain of a few dozen torch ops over the points (region
 tests, selections, gathers, norms, signs), each costing more in per-op overhead than in
@@ -37,13 +38,15 @@ from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 #: Most moves of a walk over the triangles' rings (`walk_to_closest_faces`).
 WALK_MOVES = 4
 
-__all__ = ["WALK_MOVES", "SurfaceArrays", "SurfacePoints", "closest_point_on_indexed_triangles", "closest_point_on_triangle", "closest_surface_points",
-           "walk_to_closest_faces"]
+__all__ = ["WALK_MOVES", "SurfaceArrays", "SurfacePoints", "closest_point_on_indexed_triangles",
+           "closest_point_on_triangle", "closest_surface_points", "kernels", "walk_to_closest_faces"]
 
 
 @defined_once
 def kernels() -> dict:
-    """Define the kernels (first call only; Warp caches the compiled code on disk)."""
+    """Define the kernels (first call only; Warp caches the compiled code on disk), with the
+    functions of a point's walk and closest surface point that other kernels call
+    (`physics.contact_kernels`)."""
     wp = warp()
     f64 = wp.float64
 

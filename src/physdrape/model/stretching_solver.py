@@ -89,8 +89,8 @@ class StretchingSolver(nn.Module):
             `refactor_every`): the garment's stiffness changes most while X_init's strain relaxes.
         follow_planes: at the steps between body queries, find the closest body faces again
             for the samples within `contact_band` of their held planes, by a walk from their
-            planes' faces over the faces around them (`BodySurface.query`'s `near`; the others,
-            out of the contact's reach at that step, keep theirs): the planes follow the garment
+            planes' faces over the faces around them (`physics.contact.follow_planes`, one launch;
+            the others, out of the contact's reach at that step, keep theirs): the planes follow the garment
             where it touches the body at every step, for a fraction of a full query's cost; the
             full query every `requery_every` steps finds what a walk cannot reach (a closer
             sheet of the body farther along it).
@@ -408,7 +408,7 @@ class _Relaxation:
                     self._found_at = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
                 change = None
             else:
-                found_at = self.planes[0] if self._found_at is None else self._found_at
+                found_at = self.planes[0] if self._found_at is None else self._found_at  # unread with min_move 0
                 new = follow_planes(x, self.cloth.faces, *self.planes, self._faces, found_at, bodies, body_index,
                                     band=self.band, min_move=self.min_move, stiffness=self.stiffness,
                                     margin=self.margin)
