@@ -104,8 +104,6 @@ class SignMethod(str, enum.Enum):
     PSEUDO_NORMAL = "pseudo_normal"
 
 
-
-
 @functools.lru_cache(maxsize=8)
 def _body_topology(faces: bytes, num_faces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per body topology (computed once per mesh): each face's neighbours across its edges (F, 3),
@@ -465,7 +463,6 @@ class BodySurface:
         x, body, lead = packed_points(points, body_index, self.verts)
         inside = self._search(x.to(torch.float32).contiguous(), body.to(torch.int32).contiguous(), winding=True)[1]
         return inside.reshape(lead)
-
 
 
 def query_body_surface(
