@@ -1,11 +1,14 @@
 """Φ per garment in one launch (`physics.potential`) against its terms composed from the per-element
-kernels and torch (float64), on packed batches, with and without planes, external forces, ties."""
+kernels and torch (float64), on packed batches, with and without planes, external forces, ties; and
+the force and blocks of `GarmentPotential.local_terms` against the per-term kernels and the
+majorant's torch twin."""
 
 from dataclasses import replace
 
 import pytest
 import torch
 from device_params import DEVICES
+from majorant_reference import vertex_blocks as reference_vertex_blocks
 
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import grid_sheet, open_cylinder
@@ -14,14 +17,16 @@ from physdrape.physics.contact import (
     contact_energy,
     contact_samples,
     garment_energy,
+    plane_contact_blocks,
+    plane_contact_forces,
     plane_distance,
 )
-from physdrape.physics.forces import internal_energy
+from physdrape.physics.forces import internal_energy, internal_forces, tie_forces
 from physdrape.physics.layers import LayerOrder
 from physdrape.physics.potential import GarmentPotential, _garment_parts
 from physdrape.physics.stitches import Stitches
 
-STIFFNESS, MARGIN = 2.5e3, 2e-3
+STIFFNESS, MARGIN, BAND = 2.5e3, 2e-3, 5e-3
 
 
 def _case(sheet_cells=(12, 10), seed=0):
@@ -151,3 +156,51 @@ def test_bad_shapes_are_refused():
         potential.hold((planes[0][:-1], planes[1][:-1]))
     with pytest.raises(ValueError, match="a force per vertex"):
         GarmentPotential(cloth, external=external[:-1])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("with_planes", [True, False], ids=["planes", "no_planes"])
+@pytest.mark.parametrize("with_external", [True, False], ids=["external", "no_external"])
+def test_local_terms_are_the_force_and_blocks_of_each_term(device, with_planes, with_external):
+    """One launch gives the force of the per-term kernels (internal forces without the ties, the
+    contact on the held planes, the external force), the majorant's vertex blocks (its torch twin)
+    and the contact's band blocks; on a second set of planes, the same again."""
+    batch, cloth, x, planes, external = _case()
+    tied = _tied(cloth, batch)  # the ties' forces are the caller's: not in the local terms
+    on = tied.to(device=device)
+    potential = GarmentPotential(on, external=None if not with_external else external.to(device),
+                                 stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+    for shift in (0.0, 2e-3):
+        held = (planes[0] + shift * planes[1], planes[1])
+        potential.hold(tuple(p.to(device) for p in held) if with_planes else None)
+        terms = potential.local_terms(x.to(device))
+        want = internal_forces(x, tied) - tie_forces(x, tied)
+        want_contact = torch.zeros(x.shape[0], 3, 3, dtype=torch.float64)
+        if with_planes:
+            want = want + plane_contact_forces(x, cloth.faces, *held, stiffness=STIFFNESS, margin=MARGIN)
+            want_contact = plane_contact_blocks(x, cloth.faces, *held, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+            assert want_contact.abs().amax() > 0
+        if with_external:
+            want = want + external
+        scale = want.abs().amax()
+        torch.testing.assert_close(terms.force.cpu(), want, rtol=1e-10, atol=1e-12 * scale)
+        blocks = reference_vertex_blocks(x, cloth)
+        torch.testing.assert_close(terms.blocks.cpu(), blocks, rtol=1e-10, atol=1e-12 * blocks.abs().amax())
+        torch.testing.assert_close(terms.contact.cpu(), want_contact, rtol=1e-10, atol=1e-12 * (1 + want_contact.abs().amax()))
+
+
+def test_local_terms_split_by_garment_same_terms():
+    """Two torch threads: the local terms' launch splits between whole garments, same sums."""
+    _, cloth, x, planes, external = _case(sheet_cells=(40, 40))
+    potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+    potential.hold(planes)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = potential.local_terms(x)
+        torch.set_num_threads(2)
+        two = potential.local_terms(x)
+    finally:
+        torch.set_num_threads(before)
+    for a, b in zip((one.force, one.blocks, one.contact), (two.force, two.blocks, two.contact)):
+        torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-15 * (1 + a.abs().amax()))

@@ -17,12 +17,11 @@ from physdrape.physics.contact import (
     contact_samples,
     follow_planes,
     garment_energy,
-    plane_contact_blocks,
     plane_contact_forces,
     query_samples,
 )
-from physdrape.physics.forces import extra_blocks, internal_forces
-from physdrape.physics.majorant import vertex_compliance
+from physdrape.physics.forces import extra_blocks, internal_forces, tie_forces
+from physdrape.physics.majorant import compliance
 from physdrape.physics.potential import GarmentPotential
 
 
@@ -52,7 +51,7 @@ class StretchingSolver(nn.Module):
       the direction does not descend). η is dimensionless (1 = a full preconditioned step). The
       preconditioner is two-level: C = K⁻¹ + P (Pᵀ K P)⁻¹ Pᵀ, K⁻¹ block Jacobi (K_i the 3×3
       diagonal block of a PSD majorant of the Hessian of E_strain + E_bend + E_c,
-      `physics.majorant.vertex_compliance`: each vertex gets the compliance of its own stiffness, so
+      `physics.majorant.compliance`: each vertex gets the compliance of its own stiffness, so
       one η suits small and large faces, soft and stiff fabrics), the second term the Galerkin
       correction on a garment's smooth patches (`physics.coarse_space.CoarseSpace`), which moves
       what block Jacobi cannot: the garment sliding, riding up or stretching as a whole. The body
@@ -225,11 +224,10 @@ class StretchingSolver(nn.Module):
             elif bodies is not None and follow_planes:
                 change = problem.requery(x, bodies, body_index, local=True)
                 phi = None if phi is None else phi + change  # Φ at x on the followed planes, without a new evaluation
-            force = problem.force(x)
-            contact = problem.contact_blocks(x)
+            force, contact, inverse = problem.step_terms(x)
             if t % self.refactor_every == 0 or t < self.refactor_first:
                 coarse.factor(x, contact)
-            precondition = partial(_precondition, self._stiffness_inverse(x.detach(), cloth, contact), coarse)
+            precondition = partial(_precondition, inverse, coarse)
             iterations = self.inner_iterations if self.training else self.eval_inner_iterations
             if t < self.inner_steps and iterations > 1:
                 z = _truncated_newton(precondition, coarse.stiffness_product, force, iterations, per_garment, owner)
@@ -271,20 +269,14 @@ class StretchingSolver(nn.Module):
         problem = self._relaxation(cloth, None)
         if bodies is not None:
             problem.requery(x, bodies, body_index)
-        contact = problem.contact_blocks(x)
+        _, contact, inverse = problem.step_terms(x)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         coarse.factor(x, contact)
-        return partial(_precondition, self._stiffness_inverse(x, cloth, contact), coarse)
+        return partial(_precondition, inverse, coarse)
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
         return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band,
                            min_move=self.follow_min_move)
-
-    @torch.no_grad()
-    def _stiffness_inverse(self, x: Tensor, cloth: Cloth, contact: Tensor | None) -> Tensor:
-        """Inverses of the per-vertex stiffness blocks K_i (strain, bending, contact), (V, 3, 3),
-        each floored relative to its own stiffness (`physics.majorant.vertex_compliance`)."""
-        return vertex_compliance(x, cloth, contact, rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps))
 
     @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,
@@ -375,7 +367,7 @@ class _Relaxation:
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
-        self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin)
+        self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
 
     def without_f_hat(self) -> _Relaxation:
         """The same problem without the −f̂·x term, on the same held planes."""
@@ -433,14 +425,30 @@ class _Relaxation:
             force = force + self.f_hat
         return force
 
-    def contact_blocks(self, x: Tensor) -> Tensor | None:
-        """Per-vertex Gauss-Newton blocks of the contact penalty (V, 3, 3) at x on the held planes,
-        samples within `band` of their plane taken at depth ≥ ε, plus the grip's and the diagonal
-        blocks of the stitches' and layer pairs' (`physics.forces.extra_blocks`; the coarse space
-        adds their coupling); or None without any."""
+    def step_terms(self, x: Tensor) -> tuple[Tensor, Tensor | None, Tensor]:
+        """What a step starts from at x, in x's dtype, from one launch (`GarmentPotential.local_terms`):
+
+        - the force −∇Φ (V, 3) [N]; where x or f̂ carries a gradient (training), the force of
+          `force`, differentiable through the same per-element formulas;
+        - the contact's per-vertex Gauss-Newton blocks (V, 3, 3) [N/m] on the held planes, samples
+          within `band` of their plane taken at depth ≥ ε, plus the grip's and the diagonal blocks
+          of the stitches' and layer pairs' (`physics.forces.extra_blocks`; the coarse space adds
+          their coupling); or None without any;
+        - the inverses of the per-vertex stiffness blocks K_i (strain, bending, contact) (V, 3, 3)
+          [m/N], each floored relative to its own stiffness (`physics.majorant.compliance`): each
+          vertex gets the compliance of its own stiffness.
+        """
+        terms = self._potential.local_terms(x)
+        if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
+            force = self.force(x)
+        else:
+            force = terms.force.to(x.dtype)
+            ties = tie_forces(x.detach(), self.cloth)
+            force = force if ties is None else force + ties
+        contact = None if self.planes is None else terms.contact
         extra = extra_blocks(self.cloth)
-        if self.planes is None:
-            return extra
-        blocks = plane_contact_blocks(x, self.cloth.faces, *self.planes, stiffness=self.stiffness, margin=self.margin,
-                                      band=self.band)
-        return blocks if extra is None else blocks + extra.to(blocks.dtype)
+        if extra is not None:
+            contact = extra.to(torch.float64) if contact is None else contact + extra.to(torch.float64)
+        inverse = compliance(terms.blocks, contact, rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
+                             tiny=float(torch.finfo(x.dtype).tiny))
+        return force, None if contact is None else contact.to(x.dtype), inverse.to(x.dtype)

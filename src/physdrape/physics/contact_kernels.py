@@ -57,6 +57,50 @@ def kernels() -> dict:
         b, s = wp.tid()
         out[b, s] = plane_distance(x, corners, closest, normal, b, s)
 
+    @wp.func
+    def sample_force(d: wp.float64, n: wp.vec3d, stiffness: wp.float64, margin: wp.float64):
+        """−∂/∂s of k_c ReLU(ε − d)³ at a sample at distance d from its plane of normal n:
+        3 k_c ReLU(ε − d)² n."""
+        depth = wp.max(margin - d, f64(0.0))
+        return (f64(3.0) * stiffness * depth * depth) * n
+
+    @wp.func
+    def sample_block(d: wp.float64, n: wp.vec3d, stiffness: wp.float64, margin: wp.float64, band: wp.float64):
+        """The Gauss–Newton block 6 k_c ReLU(ε − d) n nᵀ of a sample, taken at depth ≥ ε within
+        `band` of its plane (`contact.plane_contact_blocks`)."""
+        if d < band:
+            d = wp.min(d, f64(0.0))
+        depth = wp.max(margin - d, f64(0.0))
+        return (f64(6.0) * stiffness * depth) * wp.outer(n, n)
+
+    @wp.func
+    def spread_force(out: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32), b: int, s: int,
+                     value: wp.vec3d):
+        """A sample's force onto its vertex, or a third onto each corner of its face."""
+        a = corners[s, 0]
+        c = corners[s, 1]
+        if a == c:
+            wp.atomic_add(out, b, a, value)
+        else:
+            share = value / f64(3.0)
+            wp.atomic_add(out, b, a, share)
+            wp.atomic_add(out, b, c, share)
+            wp.atomic_add(out, b, corners[s, 2], share)
+
+    @wp.func
+    def spread_block(out: wp.array2d(dtype=wp.mat33d), corners: wp.array2d(dtype=wp.int32), b: int, s: int,
+                     value: wp.mat33d):
+        """A sample's block onto its vertex, or a ninth onto each corner of its face (∂s/∂x_a = I/3)."""
+        a = corners[s, 0]
+        c = corners[s, 1]
+        if a == c:
+            wp.atomic_add(out, b, a, value)
+        else:
+            share = value / f64(9.0)
+            wp.atomic_add(out, b, a, share)
+            wp.atomic_add(out, b, c, share)
+            wp.atomic_add(out, b, corners[s, 2], share)
+
     @wp.kernel
     def force_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
                      closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), stiffness: wp.float64,
@@ -64,17 +108,9 @@ def kernels() -> dict:
         """f = 3 k_c ReLU(ε − d)² n onto a vertex sample's vertex, a third of it onto each corner
         of a centroid sample."""
         b, s = wp.tid()
-        depth = wp.max(margin - plane_distance(x, corners, closest, normal, b, s), f64(0.0))
-        if depth > f64(0.0):
-            a = corners[s, 0]
-            c = corners[s, 1]
-            if a == c:
-                wp.atomic_add(out, b, a, (f64(3.0) * stiffness * depth * depth) * normal[s])
-            else:
-                share = (stiffness * depth * depth) * normal[s]
-                wp.atomic_add(out, b, a, share)
-                wp.atomic_add(out, b, c, share)
-                wp.atomic_add(out, b, corners[s, 2], share)
+        d = plane_distance(x, corners, closest, normal, b, s)
+        if d < margin:
+            spread_force(out, corners, b, s, sample_force(d, normal[s], stiffness, margin))
 
     @wp.kernel(enable_backward=False)
     def blocks_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
@@ -84,21 +120,8 @@ def kernels() -> dict:
         centroid sample; a sample within `band` of its plane is taken at depth ≥ ε."""
         b, s = wp.tid()
         d = plane_distance(x, corners, closest, normal, b, s)
-        if d < band:
-            d = wp.min(d, f64(0.0))
-        depth = wp.max(margin - d, f64(0.0))
-        if depth > f64(0.0):
-            n = normal[s]
-            block = (f64(6.0) * stiffness * depth) * wp.outer(n, n)
-            a = corners[s, 0]
-            c = corners[s, 1]
-            if a == c:
-                wp.atomic_add(out, b, a, block)
-            else:
-                share = block / f64(9.0)
-                wp.atomic_add(out, b, a, share)
-                wp.atomic_add(out, b, c, share)
-                wp.atomic_add(out, b, corners[s, 2], share)
+        if d < wp.max(band, margin):
+            spread_block(out, corners, b, s, sample_block(d, normal[s], stiffness, margin, band))
 
     geometry = closest_point.kernels()
     walk, surface_point = geometry["walk_func"], geometry["surface_point"]
@@ -147,4 +170,6 @@ def kernels() -> dict:
             followed[s] = 0
 
     return {"follow": follow_kernel, "distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel,
-            "plane_distance": plane_distance, "penalty": penalty}
+            "plane_distance": plane_distance, "penalty": penalty,
+            "sample_force": sample_force, "sample_block": sample_block, "spread_force": spread_force,
+            "spread_block": spread_block}

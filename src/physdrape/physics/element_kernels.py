@@ -90,6 +90,17 @@ def _kernels() -> dict:
         b, f = wp.tid()
         out[b, f] = face_strain_energy(x, faces, rest_inv, volume, mu, lam, b, f)
 
+    @wp.func
+    def strain_corner_forces(c0: wp.vec3d, c1: wp.vec3d, s00: wp.float64, s01: wp.float64, s11: wp.float64,
+                             r: wp.mat22d, v: wp.float64):
+        """The StVK forces −V P Dm⁻ᵀ on the corners 0, 1, 2 of a face with F = [c0 c1], stress S,
+        Dm⁻¹ = r and volume v."""
+        p0 = c0 * s00 + c1 * s01  # the columns of P = F S
+        p1 = c0 * s01 + c1 * s11
+        f1 = -v * (p0 * r[0, 0] + p1 * r[0, 1])
+        f2 = -v * (p0 * r[1, 0] + p1 * r[1, 1])
+        return -(f1 + f2), f1, f2
+
     @wp.kernel
     def strain_force_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
                             rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
@@ -99,13 +110,8 @@ def _kernels() -> dict:
         c0, c1 = face_columns(x, faces, rest_inv, b, f)
         g00, g01, g11 = green_strain(c0, c1)
         s00, s01, s11 = stress(g00, g01, g11, mu[f], lam[f])
-        p0 = c0 * s00 + c1 * s01  # the columns of P = F S
-        p1 = c0 * s01 + c1 * s11
-        r = rest_inv[f]
-        v = volume[f]
-        f1 = -v * (p0 * r[0, 0] + p1 * r[0, 1])  # −V P Dm⁻ᵀ: the forces on corners 1 and 2
-        f2 = -v * (p0 * r[1, 0] + p1 * r[1, 1])
-        wp.atomic_add(out, b, faces[f, 0], -(f1 + f2))
+        f0, f1, f2 = strain_corner_forces(c0, c1, s00, s01, s11, rest_inv[f], volume[f])
+        wp.atomic_add(out, b, faces[f, 0], f0)
         wp.atomic_add(out, b, faces[f, 1], f1)
         wp.atomic_add(out, b, faces[f, 2], f2)
 
@@ -195,18 +201,23 @@ def _kernels() -> dict:
         b, h = wp.tid()
         out[b, h] = hinge_bend_energy(x, hinges, stiffness, b, h)
 
-    @wp.kernel
-    def bend_force_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
-                          stiffness: wp.array(dtype=wp.float64), out: wp.array2d(dtype=wp.vec3d)):
-        b, h = wp.tid()
+    @wp.func
+    def hinge_gradients(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32), b: int, h: int):
+        """θ of hinge h of batch row b and its gradients w.r.t. the hinge's vertices v0 … v3."""
         x0 = x[b, hinges[h, 0]]
         edge = x[b, hinges[h, 1]] - x0
         d2 = x[b, hinges[h, 2]] - x0
         d3 = x[b, hinges[h, 3]] - x0
         n_a = wp.cross(edge, d2)
         n_b = wp.cross(d3, edge)
-        theta = hinge_angle(edge, n_a, n_b)
         g0, g1, g2, g3 = angle_gradients(edge, d2, d3, n_a, n_b)
+        return hinge_angle(edge, n_a, n_b), g0, g1, g2, g3
+
+    @wp.kernel
+    def bend_force_kernel(x: wp.array2d(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
+                          stiffness: wp.array(dtype=wp.float64), out: wp.array2d(dtype=wp.vec3d)):
+        b, h = wp.tid()
+        theta, g0, g1, g2, g3 = hinge_gradients(x, hinges, b, h)
         scale = -stiffness[h] * theta
         wp.atomic_add(out, b, hinges[h, 0], scale * g0)
         wp.atomic_add(out, b, hinges[h, 1], scale * g1)
@@ -214,7 +225,8 @@ def _kernels() -> dict:
         wp.atomic_add(out, b, hinges[h, 3], scale * g3)
 
     return {"wp": wp, "atan2": atan2_f64, "deformation_columns": deformation_columns, "green_strain": green_strain, "stress": stress,
-            "angle_gradients": angle_gradients, "face_strain_energy": face_strain_energy,
+            "angle_gradients": angle_gradients, "strain_corner_forces": strain_corner_forces,
+            "hinge_gradients": hinge_gradients, "face_columns": face_columns, "face_strain_energy": face_strain_energy,
             "hinge_bend_energy": hinge_bend_energy, "strain_energy": strain_energy_kernel, "strain_force": strain_force_kernel,
             "hinge_angle": hinge_angle_kernel, "bend_energy": bend_energy_kernel, "bend_force": bend_force_kernel}
 

@@ -24,12 +24,22 @@ def internal_forces(x: Tensor, cloth: Cloth) -> Tensor:
     """f_int = f_strain + f_bend + f_grav (+ f_grip + f_stitch + f_layer) [N], x (..., V, 3) →
     (..., V, 3); equals −∇(E_strain + E_bend + E_grav (+ E_grip + E_stitch + E_layer))."""
     f = strain_forces(x, cloth) + bend_forces(x, cloth) + gravity_forces(x, cloth)
+    ties = tie_forces(x, cloth)
+    return f if ties is None else f + ties
+
+
+def tie_forces(x: Tensor, cloth: Cloth) -> Tensor | None:
+    """f_grip + f_stitch + f_layer [N], x (..., V, 3) → (..., V, 3): the forces of the terms that tie
+    the cloth beyond its elements, those the cloth has (None: it has none)."""
+    f = None
     if cloth.grip is not None:
-        f = f + grip_forces(x, cloth.grip)
+        f = grip_forces(x, cloth.grip)
     if cloth.stitches is not None:
-        f = f + stitch_forces(x, cloth.stitches)
+        stitch = stitch_forces(x, cloth.stitches)
+        f = stitch if f is None else f + stitch
     if cloth.layers is not None:
-        f = f + layer_forces(x, cloth.layers)
+        layer = layer_forces(x, cloth.layers)
+        f = layer if f is None else f + layer
     return f
 
 

@@ -19,23 +19,34 @@ from one closed-form PSD majorant of ∇²(E_strain + E_bend), without eigendeco
 - Bending: the Gauss–Newton part k·∇θ∇θᵀ of each hinge (PSD by construction), added to the
   vertex blocks only (smooth coarse patches barely bend).
 
+The per-vertex blocks come from the local-terms kernel, which also sums the force −∇Φ that the
+solver's step starts from (strain, bending, gravity, an external force and the body contact on
+held planes, `LocalTerms`) and the contact's Gauss–Newton blocks: a face's deformation and
+stress, and a hinge's angle gradients, serve its force and its blocks at once, and a step's
+force and stiffness are one launch (`physics.potential.GarmentPotential.local_terms` records it
+on the solver's held planes). The per-element formulas are those of the element and contact
+kernels (`physics.element_kernels`, `physics.contact_kernels`).
+
 The kernels compute in float64 whatever the garment's dtype (a few thousand elements; the
 coarse product is formed in float64 anyway) and run where the tensors live, on the CPU or on
-CUDA, one thread per face or hinge, summing into the vertices and pairs atomically. Nothing here
-is differentiated: the solver's preconditioner is a constant of each step.
+CUDA, one thread per face, hinge or vertex, summing into the vertices and pairs atomically.
+Nothing here is differentiated: the solver's preconditioner is a constant of each step, and its
+training differentiates the forces of the element kernels.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
-from physdrape.physics import element_kernels
+from physdrape.physics import contact_kernels, element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["pair_blocks", "vertex_blocks", "vertex_compliance"]
+__all__ = ["LocalTerms", "compliance", "pair_blocks", "record_local_terms", "vertex_blocks", "vertex_compliance"]
 
 
 @defined_once
@@ -43,9 +54,13 @@ def _kernels():
     """Define the kernels (first call only; Warp caches the compiled code on disk)."""
     wp = warp()
     f64 = wp.float64
-    shared = element_kernels._kernels()  # the element kernels' F, G, S and ∇θ
+    shared = element_kernels._kernels()  # the element kernels' F, G, S, forces and ∇θ
     deformation_columns, green_strain, stress = shared["deformation_columns"], shared["green_strain"], shared["stress"]
-    angle_gradients = shared["angle_gradients"]
+    face_columns, strain_corner_forces = shared["face_columns"], shared["strain_corner_forces"]
+    hinge_gradients = shared["hinge_gradients"]
+    contact = contact_kernels.kernels()  # a sample's distance, force and block on its held plane
+    plane_distance, sample_force, sample_block = contact["plane_distance"], contact["sample_force"], contact["sample_block"]
+    spread_force, spread_block = contact["spread_force"], contact["spread_block"]
 
     @wp.func
     def abs_part(s: wp.mat22d) -> wp.mat22d:
@@ -68,14 +83,8 @@ def _kernels():
                          + lam * wp.outer(ua, ub) + mu * wp.dot(wa, wb) * fft)
 
     @wp.func
-    def face_state(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
-                   rest_inv: wp.array(dtype=wp.mat22d), mu: wp.float64, lam: wp.float64, f: int):
-        """Corner weights w_a, u_a = F w_a, |S| and F Fᵀ of face f."""
-        r = rest_inv[f]
-        c0, c1 = deformation_columns(x[faces[f, 0]], x[faces[f, 1]], x[faces[f, 2]], r)  # the columns of F
-        g00, g01, g11 = green_strain(c0, c1)
-        s00, s01, s11 = stress(g00, g01, g11, mu, lam)
-        s = wp.mat22d(s00, s01, s01, s11)
+    def face_terms(c0: wp.vec3d, c1: wp.vec3d, s: wp.mat22d, r: wp.mat22d):
+        """Corner weights w_a, u_a = F w_a, |S| and F Fᵀ of a face with F = [c0 c1], stress S and Dm⁻¹ = r."""
         w1 = wp.vec2d(r[0, 0], r[0, 1])
         w2 = wp.vec2d(r[1, 0], r[1, 1])
         w0 = -(w1 + w2)
@@ -84,16 +93,88 @@ def _kernels():
         u2 = c0 * w2[0] + c1 * w2[1]
         return w0, w1, w2, u0, u1, u2, abs_part(s), wp.outer(c0, c0) + wp.outer(c1, c1)
 
+    @wp.func
+    def face_state(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                   rest_inv: wp.array(dtype=wp.mat22d), mu: wp.float64, lam: wp.float64, f: int):
+        """`face_terms` of face f."""
+        r = rest_inv[f]
+        c0, c1 = deformation_columns(x[faces[f, 0]], x[faces[f, 1]], x[faces[f, 2]], r)  # the columns of F
+        g00, g01, g11 = green_strain(c0, c1)
+        s00, s01, s11 = stress(g00, g01, g11, mu, lam)
+        return face_terms(c0, c1, wp.mat22d(s00, s01, s01, s11), r)
+
+    @wp.func
+    def contact_terms(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
+                      closest: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), stiffness: wp.float64,
+                      margin: wp.float64, band: wp.float64, s: int, force: wp.array2d(dtype=wp.vec3d),
+                      contact: wp.array2d(dtype=wp.mat33d)):
+        """Sample s's contact force and block on its held plane, onto its vertex or its face's corners."""
+        d = plane_distance(x, corners, closest, normal, 0, s)
+        if d < margin:
+            spread_force(force, corners, 0, s, sample_force(d, normal[s], stiffness, margin))
+        if d < wp.max(band, margin):
+            spread_block(contact, corners, 0, s, sample_block(d, normal[s], stiffness, margin, band))
+
     @wp.kernel(enable_backward=False)
-    def strain_vertex_kernel(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
-                             rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
-                             mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.mat33d)):
-        f = wp.tid()
-        m, l, v = mu[f], lam[f], volume[f]
-        w0, w1, w2, u0, u1, u2, s_abs, fft = face_state(x, faces, rest_inv, m, l, f)
-        wp.atomic_add(out, faces[f, 0], corner_block(w0, u0, w0, u0, s_abs, fft, m, l, v))
-        wp.atomic_add(out, faces[f, 1], corner_block(w1, u1, w1, u1, s_abs, fft, m, l, v))
-        wp.atomic_add(out, faces[f, 2], corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
+    def local_terms_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                           rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
+                           mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
+                           hinges: wp.array2d(dtype=wp.int32), bend_stiffness: wp.array(dtype=wp.float64),
+                           mass: wp.array(dtype=wp.float64), gravity: wp.array(dtype=wp.vec3d),
+                           vert_garment: wp.array(dtype=wp.int32), external: wp.array(dtype=wp.vec3d),
+                           with_external: int, corners: wp.array2d(dtype=wp.int32), closest: wp.array(dtype=wp.vec3d),
+                           normal: wp.array(dtype=wp.vec3d), with_planes: int, stiffness: wp.float64,
+                           margin: wp.float64, band: wp.float64, face_lo: int, num_faces: int, hinge_lo: int,
+                           num_hinges: int, vert_lo: int, num_verts: int, force: wp.array2d(dtype=wp.vec3d),
+                           blocks: wp.array2d(dtype=wp.mat33d), contact: wp.array2d(dtype=wp.mat33d)):
+        """One thread per face (its strain force and blocks, its centroid's contact), per hinge (its
+        bending force and Gauss–Newton blocks) and per vertex (gravity, the external force, its own
+        contact): the force −∇Φ (`force`), the strain and bending majorant's vertex blocks
+        (`blocks`) and the contact's blocks (`contact`), each summed into the vertices."""
+        i = wp.tid()
+        if i < num_faces:
+            f = face_lo + i
+            r = rest_inv[f]
+            m = mu[f]
+            l = lam[f]
+            v = volume[f]
+            c0, c1 = face_columns(x, faces, rest_inv, 0, f)
+            g00, g01, g11 = green_strain(c0, c1)
+            s00, s01, s11 = stress(g00, g01, g11, m, l)
+            f0, f1, f2 = strain_corner_forces(c0, c1, s00, s01, s11, r, v)
+            w0, w1, w2, u0, u1, u2, s_abs, fft = face_terms(c0, c1, wp.mat22d(s00, s01, s01, s11), r)
+            a0 = faces[f, 0]
+            a1 = faces[f, 1]
+            a2 = faces[f, 2]
+            wp.atomic_add(force, 0, a0, f0)
+            wp.atomic_add(force, 0, a1, f1)
+            wp.atomic_add(force, 0, a2, f2)
+            wp.atomic_add(blocks, 0, a0, corner_block(w0, u0, w0, u0, s_abs, fft, m, l, v))
+            wp.atomic_add(blocks, 0, a1, corner_block(w1, u1, w1, u1, s_abs, fft, m, l, v))
+            wp.atomic_add(blocks, 0, a2, corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
+            if with_planes != 0:  # the face's centroid sample: V + f
+                contact_terms(x, corners, closest, normal, stiffness, margin, band, num_verts + f, force, contact)
+        elif i < num_faces + num_hinges:
+            h = hinge_lo + i - num_faces
+            k = bend_stiffness[h]
+            theta, g0, g1, g2, g3 = hinge_gradients(x, hinges, 0, h)
+            scale = -k * theta
+            wp.atomic_add(force, 0, hinges[h, 0], scale * g0)
+            wp.atomic_add(force, 0, hinges[h, 1], scale * g1)
+            wp.atomic_add(force, 0, hinges[h, 2], scale * g2)
+            wp.atomic_add(force, 0, hinges[h, 3], scale * g3)
+            wp.atomic_add(blocks, 0, hinges[h, 0], k * wp.outer(g0, g0))
+            wp.atomic_add(blocks, 0, hinges[h, 1], k * wp.outer(g1, g1))
+            wp.atomic_add(blocks, 0, hinges[h, 2], k * wp.outer(g2, g2))
+            wp.atomic_add(blocks, 0, hinges[h, 3], k * wp.outer(g3, g3))
+        else:
+            j = vert_lo + i - num_faces - num_hinges
+            own = mass[j] * gravity[vert_garment[j]]
+            if with_external != 0:
+                own = own + external[j]
+            wp.atomic_add(force, 0, j, own)
+            if with_planes != 0:
+                contact_terms(x, corners, closest, normal, stiffness, margin, band, j, force, contact)
 
     @wp.kernel(enable_backward=False)
     def strain_pair_kernel(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
@@ -114,23 +195,6 @@ def _kernels():
         wp.atomic_add(out, pair[f, 8], corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
 
     @wp.kernel(enable_backward=False)
-    def bend_vertex_kernel(x: wp.array(dtype=wp.vec3d), hinges: wp.array2d(dtype=wp.int32),
-                           stiffness: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.mat33d)):
-        h = wp.tid()
-        x0 = x[hinges[h, 0]]
-        edge = x[hinges[h, 1]] - x0
-        d2 = x[hinges[h, 2]] - x0
-        d3 = x[hinges[h, 3]] - x0
-        n_a = wp.cross(edge, d2)
-        n_b = wp.cross(d3, edge)
-        g0, g1, g2, g3 = angle_gradients(edge, d2, d3, n_a, n_b)  # ∇θ
-        k = stiffness[h]
-        wp.atomic_add(out, hinges[h, 0], k * wp.outer(g0, g0))
-        wp.atomic_add(out, hinges[h, 1], k * wp.outer(g1, g1))
-        wp.atomic_add(out, hinges[h, 2], k * wp.outer(g2, g2))
-        wp.atomic_add(out, hinges[h, 3], k * wp.outer(g3, g3))
-
-    @wp.kernel(enable_backward=False)
     def compliance_kernel(blocks: wp.array(dtype=wp.mat33d), extra: wp.array(dtype=wp.mat33d), with_extra: int,
                           rel: wp.float64, tiny: wp.float64, out: wp.array(dtype=wp.mat33d)):
         """(K + rel·max(tr K, tiny)·I)⁻¹ of each vertex's K = blocks (+ extra)."""
@@ -141,34 +205,59 @@ def _kernels():
         floor = rel * wp.max(wp.trace(k), tiny)
         out[v] = wp.inverse(k + floor * wp.identity(n=3, dtype=wp.float64))
 
-    return wp, strain_vertex_kernel, strain_pair_kernel, bend_vertex_kernel, compliance_kernel
+    return {"wp": wp, "local_terms": local_terms_kernel, "strain_pair": strain_pair_kernel,
+            "compliance": compliance_kernel}
 
 
-def _launch(kernel, x: Tensor, elements: Tensor, per_element: list[tuple[Tensor, str]], out: Tensor) -> None:
-    """kernel over the rows of `elements` (N, k) int32: inputs x (V, 3) as vec3d, then each
-    per-element tensor (rows ↔ elements) as its Warp type, output `out` (rows: vertices or vertex
-    pairs, mat33d). On the CPU with several torch threads, the rows are split between threads where
-    they touch disjoint vertices (the garments of a packed batch, `physdrape.threads`)."""
-    wp = warp()
-    device = wp.device_from_torch(x.device)
-    target = launch_arg(out, wp.mat33d)
-    x64 = launch_arg(x, wp.vec3d)
+@dataclass(frozen=True)
+class LocalTerms:
+    """What a solver step needs of each vertex at positions x, float64, (V, ...) each: the force
+    −∇Φ (V, 3) [N] (strain, bending, gravity, the external force, the contact on held planes), the
+    strain and bending majorant's 3×3 blocks (V, 3, 3) [N/m] and the contact's Gauss–Newton blocks
+    (V, 3, 3) [N/m] (zero without planes)."""
 
-    def launch(lo: int, hi: int) -> None:
-        wp.launch(kernel, dim=hi - lo, device=device, outputs=[target],
-                  inputs=[x64, *(launch_arg(t[lo:hi], getattr(wp, kind)) for t, kind in per_element)])
-
-    threads = torch.get_num_threads() if x.device.type == "cpu" else 1
-    with torch_stream(x.device):
-        run_parts(launch, disjoint_parts(elements, threads), "elements")
+    force: Tensor
+    blocks: Tensor
+    contact: Tensor
 
 
-def _strain_constants(cloth: Cloth) -> list[tuple[Tensor, str]]:
-    """The strain kernels' per-face arguments after x: faces, Dm⁻¹, V, μ, λ (int32 / float64,
-    the element kernels' cached copies)."""
+def record_local_terms(x: Tensor, cloth: Cloth, out: LocalTerms, part: tuple[int, ...], *, external: Tensor | None,
+                       corners: Tensor | None, planes: tuple[Tensor, Tensor] | None, stiffness: float, margin: float,
+                       band: float):
+    """The launch of the local-terms kernel, recorded (`record_cmd`; None for an empty part): x (1,
+    V, 3) float64, summed into `out` (zeroed by the caller), over the part's (face lo, hi, hinge
+    lo, hi, vertex lo, hi) elements; external (V, 3) float64 or None; the contact samples' corner
+    table (`contact.sample_corners`) and held planes (closest points, normals (V + F, 3) float64),
+    or None; stiffness k_c [J/m³], margin ε [m] and the blocks' band [m] (`contact.plane_contact_blocks`).
+    The caller keeps the tensors alive while the launch is replayed."""
+    kernels = _kernels()
+    wp = kernels["wp"]
+    face_lo, face_hi, hinge_lo, hinge_hi, vert_lo, vert_hi = part
+    dim = (face_hi - face_lo) + (hinge_hi - hinge_lo) + (vert_hi - vert_lo)
+    if not dim:
+        return None
     constant = element_kernels.kernel_constant
-    return [(constant(cloth.faces), "int32"), (constant(cloth.rest_inv), "mat22d"), (constant(cloth.volume), "float64"),
-            (constant(cloth.mu), "float64"), (constant(cloth.lam), "float64")]
+    idle = torch.zeros(1, 3, dtype=torch.float64, device=x.device)
+    closest, normal = planes if planes is not None else (idle, idle)
+    corners = corners if planes is not None else idle.to(torch.int32)
+    typed = [(cloth.faces, wp.int32), (cloth.rest_inv, wp.mat22d), (cloth.volume, wp.float64), (cloth.mu, wp.float64),
+             (cloth.lam, wp.float64), (cloth.hinges, wp.int32), (cloth.bend_stiffness, wp.float64),
+             (cloth.mass, wp.float64), (cloth.gravity, wp.vec3d), (cloth.vert_garment, wp.int32)]
+    inputs = [launch_arg(x, wp.vec3d), *(launch_arg(constant(t), kind) for t, kind in typed),
+              launch_arg(idle if external is None else external, wp.vec3d), int(external is not None),
+              launch_arg(corners, wp.int32), launch_arg(closest, wp.vec3d), launch_arg(normal, wp.vec3d),
+              int(planes is not None), float(stiffness), float(margin), float(band), face_lo, face_hi - face_lo,
+              hinge_lo, hinge_hi - hinge_lo, vert_lo, cloth.num_verts]
+    outputs = [launch_arg(out.force[None], wp.vec3d), launch_arg(out.blocks[None], wp.mat33d),
+               launch_arg(out.contact[None], wp.mat33d)]
+    return wp.launch(kernels["local_terms"], dim=dim, device=wp.device_from_torch(x.device), inputs=inputs,
+                     outputs=outputs, record_cmd=True)
+
+
+def zero_local_terms(num_verts: int, device: torch.device) -> LocalTerms:
+    """Zeroed float64 buffers of a `LocalTerms`."""
+    return LocalTerms(*(torch.zeros(num_verts, *shape, dtype=torch.float64, device=device)
+                        for shape in ((3,), (3, 3), (3, 3))))
 
 
 @torch.no_grad()
@@ -177,47 +266,47 @@ def vertex_blocks(x: Tensor, cloth: Cloth) -> Tensor:
 
     x (V, 3) [m] → (V, 3, 3) [N/m] in x's dtype, symmetric PSD. The strain part equals the
     diagonal blocks of `physics.hessians.strain_hessian` wherever every face's stress S is PSD;
-    the bending part is Gauss–Newton.
+    the bending part is Gauss–Newton. The local-terms kernel's blocks, without contact.
     """
-    return _vertex_blocks64(x, cloth).to(x.dtype)
-
-
-def _vertex_blocks64(x: Tensor, cloth: Cloth) -> Tensor:
-    """`vertex_blocks` in float64."""
-    _, strain_vertex, _, bend_vertex, _ = _kernels()
-    out = torch.zeros(cloth.num_verts, 3, 3, dtype=torch.float64, device=x.device)
-    x64 = x.detach().to(torch.float64).contiguous()
-    if cloth.faces.shape[0]:
-        strain = _strain_constants(cloth)
-        _launch(strain_vertex, x64, strain[0][0], strain, out)
-    if cloth.hinges.shape[0]:
-        hinges = element_kernels.kernel_constant(cloth.hinges)
-        _launch(bend_vertex, x64, hinges, [(hinges, "int32"),
-                                           (element_kernels.kernel_constant(cloth.bend_stiffness), "float64")], out)
-    return out
+    out = zero_local_terms(cloth.num_verts, x.device)
+    x64 = x.detach().to(torch.float64).reshape(1, -1, 3).contiguous()
+    part = (0, cloth.faces.shape[0], 0, cloth.hinges.shape[0], 0, cloth.num_verts)
+    launch = record_local_terms(x64, cloth, out, part, external=None, corners=None, planes=None, stiffness=0.0,
+                                margin=0.0, band=0.0)
+    if launch is not None:
+        with torch_stream(x.device):
+            launch.launch()
+    return out.blocks.to(x.dtype)
 
 
 @torch.no_grad()
-def vertex_compliance(x: Tensor, cloth: Cloth, extra: Tensor | None = None, *, rel: float) -> Tensor:
+def compliance(blocks: Tensor, extra: Tensor | None = None, *, rel: float, tiny: float) -> Tensor:
     """Inverses of the regularised per-vertex stiffness blocks, (K_i + rel · max(tr K_i, tiny) · I)⁻¹
-    with K_i = `vertex_blocks` (+ extra (V, 3, 3) [N/m], e.g. the contact's), (V, 3, 3) [m/N] in x's
-    dtype, computed in float64. The floor relative to each vertex's own stiffness keeps K_i
-    invertible (a vertex of an unstretched flat patch has a rank-deficient block); tiny is the
-    smallest normal number of x's dtype (a vertex without stiffness)."""
-    wp, _, _, _, compliance = _kernels()
-    blocks = _vertex_blocks64(x, cloth)
+    with K_i = blocks (+ extra), each (V, 3, 3) [N/m] → (V, 3, 3) [m/N] float64. The floor relative to
+    each vertex's own stiffness keeps K_i invertible (a vertex of an unstretched flat patch has a
+    rank-deficient block); tiny: the stiffness floor of a vertex without any [N/m]."""
+    wp = _kernels()["wp"]
+    blocks = blocks.detach().to(torch.float64).contiguous()
     if extra is not None:
         if tuple(extra.shape) != tuple(blocks.shape):
             raise ValueError(f"extra blocks must have shape {tuple(blocks.shape)}, got {tuple(extra.shape)}")
         extra = extra.detach().to(torch.float64).contiguous()
     out = torch.empty_like(blocks)
-    if cloth.num_verts:
-        with torch_stream(x.device):
-            wp.launch(compliance, dim=cloth.num_verts, device=wp.device_from_torch(x.device),
+    if blocks.shape[0]:
+        with torch_stream(blocks.device):
+            wp.launch(_kernels()["compliance"], dim=blocks.shape[0], device=wp.device_from_torch(blocks.device),
                       inputs=[launch_arg(blocks, wp.mat33d), launch_arg(blocks if extra is None else extra, wp.mat33d),
-                              int(extra is not None), float(rel), float(torch.finfo(x.dtype).tiny)],
+                              int(extra is not None), float(rel), float(tiny)],
                       outputs=[launch_arg(out, wp.mat33d)])
-    return out.to(x.dtype)
+    return out
+
+
+@torch.no_grad()
+def vertex_compliance(x: Tensor, cloth: Cloth, extra: Tensor | None = None, *, rel: float) -> Tensor:
+    """`compliance` of `vertex_blocks` (+ extra (V, 3, 3) [N/m], e.g. the contact's), (V, 3, 3) [m/N]
+    in x's dtype, computed in float64; tiny is the smallest normal number of x's dtype."""
+    return compliance(vertex_blocks(x.to(torch.float64), cloth), extra, rel=rel,
+                      tiny=float(torch.finfo(x.dtype).tiny)).to(x.dtype)
 
 
 @torch.no_grad()
@@ -228,13 +317,27 @@ def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int)
     f's block (a, b) is added to (rows of vertex a, columns of vertex b), entry 3a + b. With
     ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3).
     """
-    _, _, strain_pair, _, _ = _kernels()
+    wp = _kernels()["wp"]
     out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=x.device)
     if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
         raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
                          f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
-    if cloth.faces.shape[0]:  # a face's pairs are pairs of its garment: the garments' pairs are disjoint too
-        strain = _strain_constants(cloth)
-        _launch(strain_pair, x.detach().to(torch.float64).contiguous(), strain[0][0],
-                [*strain, (pair_of_corner.contiguous(), "int32")], out)
+    if not cloth.faces.shape[0]:
+        return out
+    constant = element_kernels.kernel_constant
+    per_face = [(constant(cloth.faces), wp.int32), (constant(cloth.rest_inv), wp.mat22d),
+                (constant(cloth.volume), wp.float64), (constant(cloth.mu), wp.float64), (constant(cloth.lam), wp.float64),
+                (pair_of_corner.contiguous(), wp.int32)]
+    x64 = launch_arg(x.detach().to(torch.float64).contiguous(), wp.vec3d)
+    target = launch_arg(out, wp.mat33d)
+
+    def launch(lo: int, hi: int) -> None:
+        wp.launch(_kernels()["strain_pair"], dim=hi - lo, device=wp.device_from_torch(x.device), outputs=[target],
+                  inputs=[x64, *(launch_arg(t[lo:hi], kind) for t, kind in per_face)])
+
+    # a face's pairs are pairs of its garment: the garments' pairs are disjoint, and on the CPU with
+    # several torch threads a packed batch's faces are split between threads (`physdrape.threads`)
+    threads = torch.get_num_threads() if x.device.type == "cpu" else 1
+    with torch_stream(x.device):
+        run_parts(launch, disjoint_parts(per_face[0][0], threads), "elements")
     return out

@@ -1,5 +1,6 @@
 """Each garment's total potential on held body planes, in one Warp launch: what the stretching
-solver's line search evaluates two or three times per step.
+solver's line search evaluates two or three times per step; and, in one more launch, the force
+and the stiffness blocks that the solver's step starts from (`GarmentPotential.local_terms`).
 
     Φ_g = E_strain + E_bend + E_grav + E_c − f_ext·x (+ E_grip + E_stitch + E_layer)
 
@@ -16,7 +17,13 @@ outputs that torch sums per garment, the same Φ costs more in per-op overhead t
 arithmetic on the CPU. The terms that tie vertices beyond
 the elements (grip, stitches, layers) are added by their torch functions (`forces.tie_energy_terms`).
 
-Not differentiated (a line search compares values); computed in float64 whatever x's dtype. On a
+The force and blocks come from the majorant's local-terms kernel (`physics.majorant`), which
+shares a face's deformation and stress, and a hinge's angle gradients, between the force and the
+blocks; the held planes and the external force are this module's, as for Φ.
+
+Not differentiated (a line search compares values; the solver's training differentiates the
+force of `physics.forces.internal_forces` and `contact.plane_contact_forces`, the same per-element
+formulas); computed in float64 whatever x's dtype. On a
 CPU with several torch threads a packed batch's launch is split between its garments, whose totals
 are disjoint (`physdrape.threads`).
 """
@@ -29,6 +36,7 @@ from physdrape.physics import contact_kernels, element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.contact import sample_corners
 from physdrape.physics.forces import tie_energy_terms
+from physdrape.physics.majorant import LocalTerms, record_local_terms, zero_local_terms
 from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
@@ -82,7 +90,7 @@ def _kernel():
 class GarmentPotential:
     """Φ per garment of one cloth (module docstring), evaluated at many positions.
 
-    The launch is recorded once per set of planes (`hold`) and replayed: x is copied into a float64
+    The launches are recorded once per set of planes (`hold`) and replayed: x is copied into a float64
     buffer the recorded launch reads and the totals are summed into a buffer it writes, so a call
     costs the kernel and a copy, not the packing of its two dozen arguments.
 
@@ -90,14 +98,15 @@ class GarmentPotential:
         cloth: the packed garments.
         external: a constant force per vertex (V, 3) [N] whose work −f·x enters Φ, or None.
         stiffness, margin: k_c [J/m³] and ε [m] of the contact penalty on the held planes.
+        band: the contact blocks' band [m] (`local_terms`).
     """
 
     def __init__(self, cloth: Cloth, *, external: Tensor | None = None, stiffness: float = 0.0,
-                 margin: float = 0.0) -> None:
+                 margin: float = 0.0, band: float = 0.0) -> None:
         num_verts = cloth.num_verts
         if external is not None and tuple(external.shape) != (num_verts, 3):
             raise ValueError(f"external must be a force per vertex ({num_verts}, 3), got {tuple(external.shape)}")
-        self.cloth, self.stiffness, self.margin = cloth, float(stiffness), float(margin)
+        self.cloth, self.stiffness, self.margin, self.band = cloth, float(stiffness), float(margin), float(band)
         device = cloth.faces.device
         constant = element_kernels.kernel_constant
         self._x = torch.zeros(1, num_verts, 3, dtype=torch.float64, device=device)
@@ -109,7 +118,8 @@ class GarmentPotential:
                                                  cloth.hinge_garment, cloth.mass, cloth.gravity, cloth.vert_garment)]
         self._corners = sample_corners(cloth.faces, num_verts)
         self._planes: tuple[Tensor, Tensor] | None = None
-        self._launches: dict[int, list] = {}  # recorded launches per thread count
+        self._terms = zero_local_terms(num_verts, device)  # the buffers `local_terms` sums into
+        self._launches: dict = {}  # recorded launches per thread count (Φ) and per ("local", thread count)
 
     def hold(self, planes: tuple[Tensor, Tensor] | None) -> None:
         """Evaluate the contact on these planes from now on: the samples' closest points and unit
@@ -130,6 +140,32 @@ class GarmentPotential:
             self._launches = {}
         for held, plane in zip(self._planes, planes):
             held.copy_(plane.detach())
+
+    def local_terms(self, x: Tensor) -> LocalTerms:
+        """The force −∇Φ and the stiffness blocks at positions x (V, 3) [m] on the held planes, in
+        one launch (`physics.majorant.LocalTerms`, float64): the force of the strain, bending,
+        gravity, external and contact terms (the ties' are the caller's: `forces.tie_forces`),
+        the majorant's vertex blocks and the contact's blocks, samples within `band` of their
+        plane taken at depth ≥ ε (`contact.plane_contact_blocks`). Not differentiated."""
+        if tuple(x.shape) != (self.cloth.num_verts, 3):
+            raise ValueError(f"x must be the cloth's packed positions ({self.cloth.num_verts}, 3), got {tuple(x.shape)}")
+        threads = torch.get_num_threads() if x.device.type == "cpu" else 1
+        with torch.no_grad():
+            self._x[0].copy_(x.detach())
+            for buffer in (self._terms.force, self._terms.blocks, self._terms.contact):
+                buffer.zero_()
+            with torch_stream(x.device):
+                key = ("local", threads)
+                launches = self._launches.get(key)
+                if launches is None:
+                    launches = self._launches[key] = [
+                        record_local_terms(self._x, self.cloth, self._terms, part, external=self._external,
+                                           corners=self._corners, planes=self._planes, stiffness=self.stiffness,
+                                           margin=self.margin, band=self.band)
+                        for part in _garment_parts(self.cloth, threads)]
+                run_parts(lambda k: launches[k].launch(), [(k,) for k in range(len(launches)) if launches[k]],
+                          "elements")
+            return LocalTerms(*(t.clone() for t in (self._terms.force, self._terms.blocks, self._terms.contact)))
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64, at positions x (V, 3) [m]; not differentiated."""
