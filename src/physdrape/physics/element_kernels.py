@@ -118,19 +118,23 @@ def _kernels() -> dict:
     @wp.func
     def atan2_f64(y: wp.float64, x: wp.float64):
         """atan2(y, x) within about an ulp, at half the cost of `wp.atan2` on the CPU (which calls
-        the C library's): the ratio of the smaller to the larger magnitude, t ∈ [0, 1], reduced
-        to |r| ≤ 0.66 by atan t = π/4 + atan((t − 1)/(t + 1)) above 0.66, then Cephes' rational
-        approximation atan r ≈ r + r z P(z)/Q(z), z = r², and the quadrant; π/4, π/2 and π carry
-        their rounding errors as second terms. atan2(0, 0) = 0."""
+        the C library's): the ratio of the smaller to the larger magnitude, t = lo/hi ∈ [0, 1],
+        reduced to |r| ≤ 0.66 by atan t = π/4 + atan((t − 1)/(t + 1)) above 0.66 (r = (lo − hi)/(lo
+        + hi) there, one division), then Cephes' rational approximation atan r ≈ r + r z P(z)/Q(z),
+        z = r², and the quadrant; π/4, π/2 and π carry their rounding errors as second terms.
+        atan2(0, 0) = 0."""
         ay = wp.abs(y)
         ax = wp.abs(x)
         hi = wp.max(ay, ax)
+        lo = wp.min(ay, ax)
         a = f64(0.0)
         if hi > f64(0.0):
-            t = wp.min(ay, ax) / hi
-            r = t
-            if t > f64(0.66):
-                r = (t - f64(1.0)) / (t + f64(1.0))
+            reduced = lo > f64(0.66) * hi
+            r = f64(0.0)
+            if reduced:
+                r = (lo - hi) / (lo + hi)
+            else:
+                r = lo / hi
             z = r * r
             p = (((f64(-8.750608600031904122785e-1) * z - f64(1.615753718733365076637e1)) * z
                   - f64(7.500855792314704667340e1)) * z - f64(1.228866684490136173410e2)) * z \
@@ -139,7 +143,7 @@ def _kernels() -> dict:
                   + f64(4.328810604912902668951e2)) * z + f64(4.853903996359136964868e2)) * z \
                 + f64(1.945506571482613964425e2)
             a = r + r * z * p / q
-            if t > f64(0.66):
+            if reduced:
                 a = f64(0.7853981633974483) + (a + f64(3.061616997868383e-17))
             if ay > ax:
                 a = f64(1.5707963267948966) - (a - f64(6.123233995736766e-17))
@@ -158,8 +162,9 @@ def _kernels() -> dict:
 
     @wp.func
     def hinge_angle(edge: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
-        """Signed dihedral angle θ = atan2((n_a × n_b)·ê, n_a·n_b), zero when flat."""
-        return atan2_f64(wp.dot(wp.cross(n_a, n_b), edge) / wp.length(edge), wp.dot(n_a, n_b))
+        """Signed dihedral angle θ = atan2((n_a × n_b)·ê, n_a·n_b), zero when flat (both arguments
+        taken times |e|: the same angle, without a division)."""
+        return atan2_f64(wp.dot(wp.cross(n_a, n_b), edge), wp.dot(n_a, n_b) * wp.length(edge))
 
     @wp.func
     def angle_gradients(edge: wp.vec3d, d2: wp.vec3d, d3: wp.vec3d, n_a: wp.vec3d, n_b: wp.vec3d):
@@ -171,8 +176,9 @@ def _kernels() -> dict:
         edge_len = wp.sqrt(edge_sq)
         g2 = -(edge_len / wp.dot(n_a, n_a)) * n_a
         g3 = -(edge_len / wp.dot(n_b, n_b)) * n_b
-        alpha_a = wp.dot(d2, edge) / edge_sq
-        alpha_b = wp.dot(d3, edge) / edge_sq
+        inv_sq = f64(1.0) / edge_sq
+        alpha_a = wp.dot(d2, edge) * inv_sq
+        alpha_b = wp.dot(d3, edge) * inv_sq
         return -(f64(1.0) - alpha_a) * g2 - (f64(1.0) - alpha_b) * g3, -alpha_a * g2 - alpha_b * g3, g2, g3
 
     @wp.kernel

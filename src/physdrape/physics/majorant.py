@@ -83,6 +83,13 @@ def _kernels():
                          + lam * wp.outer(ua, ub) + mu * wp.dot(wa, wb) * fft)
 
     @wp.func
+    def diagonal_block(wa: wp.vec2d, ua: wp.vec3d, s_abs: wp.mat22d, fft: wp.mat33d, mu: wp.float64, lam: wp.float64,
+                       volume: wp.float64) -> wp.mat33d:
+        """`corner_block` of a corner with itself: V [(w_aᵀ |S| w_a) I + (μ + λ) u_a u_aᵀ + μ |w_a|² F Fᵀ]."""
+        return volume * (wp.dot(wa, s_abs * wa) * wp.identity(n=3, dtype=wp.float64) + (mu + lam) * wp.outer(ua, ua)
+                         + mu * wp.dot(wa, wa) * fft)
+
+    @wp.func
     def face_terms(c0: wp.vec3d, c1: wp.vec3d, s: wp.mat22d, r: wp.mat22d):
         """Corner weights w_a, u_a = F w_a, |S| and F Fᵀ of a face with F = [c0 c1], stress S and Dm⁻¹ = r."""
         w1 = wp.vec2d(r[0, 0], r[0, 1])
@@ -149,9 +156,9 @@ def _kernels():
             wp.atomic_add(force, 0, a0, f0)
             wp.atomic_add(force, 0, a1, f1)
             wp.atomic_add(force, 0, a2, f2)
-            wp.atomic_add(blocks, 0, a0, corner_block(w0, u0, w0, u0, s_abs, fft, m, l, v))
-            wp.atomic_add(blocks, 0, a1, corner_block(w1, u1, w1, u1, s_abs, fft, m, l, v))
-            wp.atomic_add(blocks, 0, a2, corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
+            wp.atomic_add(blocks, 0, a0, diagonal_block(w0, u0, s_abs, fft, m, l, v))
+            wp.atomic_add(blocks, 0, a1, diagonal_block(w1, u1, s_abs, fft, m, l, v))
+            wp.atomic_add(blocks, 0, a2, diagonal_block(w2, u2, s_abs, fft, m, l, v))
             if with_planes != 0:  # the face's centroid sample: V + f
                 contact_terms(x, corners, closest, normal, stiffness, margin, band, num_verts + f, force, contact)
         elif i < num_faces + num_hinges:
@@ -184,15 +191,18 @@ def _kernels():
         f = wp.tid()
         m, l, v = mu[f], lam[f], volume[f]
         w0, w1, w2, u0, u1, u2, s_abs, fft = face_state(x, faces, rest_inv, m, l, f)
-        wp.atomic_add(out, pair[f, 0], corner_block(w0, u0, w0, u0, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 1], corner_block(w0, u0, w1, u1, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 2], corner_block(w0, u0, w2, u2, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 3], corner_block(w1, u1, w0, u0, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 4], corner_block(w1, u1, w1, u1, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 5], corner_block(w1, u1, w2, u2, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 6], corner_block(w2, u2, w0, u0, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 7], corner_block(w2, u2, w1, u1, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 8], corner_block(w2, u2, w2, u2, s_abs, fft, m, l, v))
+        b01 = corner_block(w0, u0, w1, u1, s_abs, fft, m, l, v)  # block (b, a) = block (a, b)ᵀ
+        b02 = corner_block(w0, u0, w2, u2, s_abs, fft, m, l, v)
+        b12 = corner_block(w1, u1, w2, u2, s_abs, fft, m, l, v)
+        wp.atomic_add(out, pair[f, 0], diagonal_block(w0, u0, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 1], b01)
+        wp.atomic_add(out, pair[f, 2], b02)
+        wp.atomic_add(out, pair[f, 3], wp.transpose(b01))
+        wp.atomic_add(out, pair[f, 4], diagonal_block(w1, u1, s_abs, fft, m, l, v))
+        wp.atomic_add(out, pair[f, 5], b12)
+        wp.atomic_add(out, pair[f, 6], wp.transpose(b02))
+        wp.atomic_add(out, pair[f, 7], wp.transpose(b12))
+        wp.atomic_add(out, pair[f, 8], diagonal_block(w2, u2, s_abs, fft, m, l, v))
 
     @wp.kernel(enable_backward=False)
     def compliance_kernel(blocks: wp.array(dtype=wp.mat33d), extra: wp.array(dtype=wp.mat33d), with_extra: int,
