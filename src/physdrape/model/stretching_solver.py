@@ -14,8 +14,8 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
+    PlaneFollower,
     contact_samples,
-    follow_planes,
     garment_energy,
     plane_contact_forces,
     query_samples,
@@ -367,6 +367,7 @@ class _Relaxation:
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
+        self._follower: PlaneFollower | None = None  # the local requeries' recorded launch (made at the first)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
 
     def without_f_hat(self) -> _Relaxation:
@@ -374,6 +375,7 @@ class _Relaxation:
         other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band,
                             min_move=self.min_move)
         other.planes, other._faces, other._found_at = self.planes, self._faces, self._found_at
+        other._follower = self._follower
         if self.planes is not None:
             other._potential.hold(self.planes)
         return other
@@ -401,9 +403,11 @@ class _Relaxation:
                 change = None
             else:
                 found_at = self.planes[0] if self._found_at is None else self._found_at  # unread with min_move 0
-                new = follow_planes(x, self.cloth.faces, *self.planes, self._faces, found_at, bodies, body_index,
-                                    band=self.band, min_move=self.min_move, stiffness=self.stiffness,
-                                    margin=self.margin)
+                if self._follower is None or self._follower.bodies is not bodies:
+                    self._follower = PlaneFollower(self.cloth.faces, self.cloth.num_verts, bodies, body_index,
+                                                   band=self.band, min_move=self.min_move, stiffness=self.stiffness,
+                                                   margin=self.margin, device=x.device)
+                new = self._follower(x, *self.planes, self._faces, found_at)
                 self.planes, self._faces = (new.closest, new.normal), new.face
                 if self._found_at is not None:
                     self._found_at = new.found_at

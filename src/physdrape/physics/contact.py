@@ -88,7 +88,6 @@ class FollowedPlanes:
     change: Tensor
 
 
-@torch.no_grad()
 def follow_planes(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor,
                   bodies: BodySurface, vert_body: Tensor | None, *, band: float, min_move: float, stiffness: float,
                   margin: float) -> FollowedPlanes:
@@ -100,50 +99,90 @@ def follow_planes(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, fac
     3) follow. vert_body: each vertex's body (V,) (None: the surface holds one body).
 
     Where the pseudo-normal's sign is in doubt at the new face, the winding number's decides
-    (`BodySurface.winding_sign`), as in a query.
+    (`BodySurface.winding_sign`), as in a query. A caller that follows the planes of one cloth
+    at many steps keeps a `PlaneFollower`, whose launch is recorded once.
     """
-    num_samples = x.shape[0] + faces.shape[0]
-    x64 = x.detach().to(torch.float64).reshape(1, -1, 3).contiguous()
-    body = (torch.zeros(num_samples, dtype=torch.int32, device=x.device) if vert_body is None
-            else sample_index(vert_body, faces).to(torch.int32).contiguous())
-    closest, normal = closest.to(torch.float64).contiguous(), normal.to(torch.float64).contiguous()
-    found_at = found_at.to(torch.float64).contiguous()
-    face32 = face.to(torch.int32).contiguous()
-    out = [torch.empty_like(closest), torch.empty_like(normal), torch.empty_like(face32), torch.empty_like(found_at),
-           torch.empty(num_samples, dtype=torch.float64, device=x.device),
-           torch.empty(num_samples, dtype=torch.int32, device=x.device)]
-    wp = warp()
-    if num_samples:
-        vec3, f64, i32 = wp.vec3d, wp.float64, wp.int32
-        with torch_stream(x.device):
-            wp.launch(contact_kernels.kernels()["follow"], dim=num_samples, device=wp.device_from_torch(x.device),
-                      inputs=[launch_arg(x64, vec3),
-                              launch_arg(sample_corners(faces, x.shape[0]), i32),
-                              launch_arg(closest, vec3), launch_arg(normal, vec3), launch_arg(face32, i32),
-                              launch_arg(found_at, vec3), launch_arg(body, i32), float(band), float(min_move),
-                              float(stiffness), float(margin), *bodies.walk_arrays().launch_args(wp, WALK_MOVES)],
-                      outputs=[launch_arg(out[0], vec3), launch_arg(out[1], vec3), launch_arg(out[2], i32),
-                               launch_arg(out[3], vec3), launch_arg(out[4], f64), launch_arg(out[5], i32)])
-    new_closest, new_normal, new_face, new_found, change, followed = out
-    new_face = new_face.to(torch.int64)
-    rows = torch.nonzero(followed)[:, 0]
-    if rows.numel():  # the winding number's sign where it is in doubt, as a query takes it
-        flags = followed[rows]
+    follower = PlaneFollower(faces, x.shape[0], bodies, vert_body, band=band, min_move=min_move, stiffness=stiffness,
+                             margin=margin, device=x.device)
+    return follower(x, closest, normal, face, found_at)
 
-        def points32(doubt: Tensor) -> Tensor:
-            return contact_samples(x64[0], faces)[rows[doubt]].to(torch.float32)
 
-        sign = bodies.winding_sign(points32, body[rows], new_face[rows], (flags & 2).bool(), (flags & 4).bool())
-        if sign is not None:
-            flipped = rows[sign[0][sign[2] < 0]]
-            if flipped.numel():
-                new_normal[flipped] = -new_normal[flipped]
-                points = contact_samples(x64[0], faces)[flipped]
-                before = ((points - closest[flipped]) * normal[flipped]).sum(-1)
-                after = ((points - new_closest[flipped]) * new_normal[flipped]).sum(-1)
-                energy = partial(contact_energy, stiffness=stiffness, margin=margin)
-                change[flipped] = energy(after) - energy(before)
-    return FollowedPlanes(new_closest, new_normal, new_face, new_found, change)
+class PlaneFollower:
+    """`follow_planes` for the samples of one cloth's faces on one set of bodies, called at many
+    steps: its launch is recorded once on buffers of its own (the positions and the held planes
+    are copied in, the new planes out), so a call costs the kernel and a few copies, not the
+    packing of its thirty arguments.
+
+    Args:
+        faces: the cloth's faces (F, 3); num_verts: V.
+        bodies, vert_body, band, min_move, stiffness, margin, as `follow_planes`.
+    """
+
+    def __init__(self, faces: Tensor, num_verts: int, bodies: BodySurface, vert_body: Tensor | None, *, band: float,
+                 min_move: float, stiffness: float, margin: float, device: torch.device) -> None:
+        self.faces, self.bodies, self.stiffness, self.margin = faces, bodies, float(stiffness), float(margin)
+        num_samples = num_verts + faces.shape[0]
+        self.body = (torch.zeros(num_samples, dtype=torch.int32, device=device) if vert_body is None
+                     else sample_index(vert_body, faces).to(torch.int32).contiguous())
+
+        def vec3() -> Tensor:
+            return torch.zeros(num_samples, 3, dtype=torch.float64, device=device)
+
+        def int32() -> Tensor:
+            return torch.zeros(num_samples, dtype=torch.int32, device=device)
+
+        self._x = torch.zeros(1, num_verts, 3, dtype=torch.float64, device=device)
+        self._held = (vec3(), vec3(), int32(), vec3())  # closest, normal, face, found at
+        self._out = (vec3(), vec3(), int32(), vec3(), torch.zeros(num_samples, dtype=torch.float64, device=device),
+                     int32())  # closest, normal, face, found at, change, followed
+        self._launch = None
+        if num_samples:
+            wp = warp()
+            vec, f64, i32 = wp.vec3d, wp.float64, wp.int32
+            closest, normal, face, found_at = self._held
+            with torch_stream(device):
+                self._launch = wp.launch(
+                    contact_kernels.kernels()["follow"], dim=num_samples, device=wp.device_from_torch(device),
+                    inputs=[launch_arg(self._x, vec), launch_arg(sample_corners(faces, num_verts), i32),
+                            launch_arg(closest, vec), launch_arg(normal, vec), launch_arg(face, i32),
+                            launch_arg(found_at, vec), launch_arg(self.body, i32), float(band), float(min_move),
+                            self.stiffness, self.margin, *bodies.walk_arrays().launch_args(wp, WALK_MOVES)],
+                    outputs=[launch_arg(t, kind) for t, kind in zip(self._out, (vec, vec, i32, vec, f64, i32))],
+                    record_cmd=True)
+
+    @torch.no_grad()
+    def __call__(self, x: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor) -> FollowedPlanes:
+        """`follow_planes` of positions x (V, 3) [m] from these planes (module docstring there)."""
+        if tuple(x.shape) != tuple(self._x.shape[1:]):
+            raise ValueError(f"x must be the cloth's positions {tuple(self._x.shape[1:])}, got {tuple(x.shape)}")
+        self._x[0].copy_(x.detach())
+        for held, given in zip(self._held, (closest, normal, face, found_at)):
+            held.copy_(given.detach())
+        if self._launch is not None:
+            with torch_stream(x.device):
+                self._launch.launch()
+        new_closest, new_normal, new_face, new_found, change, followed = (t.clone() for t in self._out)
+        new_face = new_face.to(torch.int64)
+        rows = torch.nonzero(followed)[:, 0]
+        if rows.numel():  # the winding number's sign where it is in doubt, as a query takes it
+            flags = followed[rows]
+            x64 = self._x[0]
+
+            def points32(doubt: Tensor) -> Tensor:
+                return contact_samples(x64, self.faces)[rows[doubt]].to(torch.float32)
+
+            sign = self.bodies.winding_sign(points32, self.body[rows], new_face[rows], (flags & 2).bool(),
+                                            (flags & 4).bool())
+            if sign is not None:
+                flipped = rows[sign[0][sign[2] < 0]]
+                if flipped.numel():
+                    new_normal[flipped] = -new_normal[flipped]
+                    points = contact_samples(x64, self.faces)[flipped]
+                    before = ((points - self._held[0][flipped]) * self._held[1][flipped]).sum(-1)
+                    after = ((points - new_closest[flipped]) * new_normal[flipped]).sum(-1)
+                    energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
+                    change[flipped] = energy(after) - energy(before)
+        return FollowedPlanes(new_closest, new_normal, new_face, new_found, change)
 
 
 def contact_depth(distance: Tensor, *, margin: float) -> Tensor:
