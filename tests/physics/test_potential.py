@@ -187,6 +187,15 @@ def test_local_terms_are_the_force_and_blocks_of_each_term(device, with_planes, 
         blocks = reference_vertex_blocks(x, cloth)
         torch.testing.assert_close(terms.blocks.cpu(), blocks, rtol=1e-10, atol=1e-12 * blocks.abs().amax())
         torch.testing.assert_close(terms.contact.cpu(), want_contact, rtol=1e-10, atol=1e-12 * (1 + want_contact.abs().amax()))
+        assert terms.compliance is None
+        # with extra blocks and a floor: the contact carries the extra, the compliance inverts blocks + contact
+        extra = 50.0 * torch.eye(3, dtype=torch.float64).expand(x.shape[0], 3, 3).clone()
+        floored = potential.local_terms(x.to(device), extra=extra.to(device), rel=1e-6, tiny=1e-300)
+        torch.testing.assert_close(floored.contact.cpu(), want_contact + extra, rtol=1e-10,
+                                   atol=1e-12 * (1 + want_contact.abs().amax()))
+        k = blocks + want_contact + extra
+        k = k + 1e-6 * k.diagonal(dim1=-2, dim2=-1).sum(-1)[:, None, None] * torch.eye(3, dtype=torch.float64)
+        torch.testing.assert_close(floored.compliance.cpu(), torch.linalg.inv(k), rtol=1e-8, atol=1e-12)
 
 
 def test_local_terms_split_by_garment_same_terms():

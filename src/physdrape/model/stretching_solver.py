@@ -21,7 +21,6 @@ from physdrape.physics.contact import (
     query_samples,
 )
 from physdrape.physics.forces import extra_blocks, internal_forces, tie_forces
-from physdrape.physics.majorant import compliance
 from physdrape.physics.potential import GarmentPotential
 
 
@@ -442,17 +441,16 @@ class _Relaxation:
           [m/N], each floored relative to its own stiffness (`physics.majorant.compliance`): each
           vertex gets the compliance of its own stiffness.
         """
-        terms = self._potential.local_terms(x)
+        extra = extra_blocks(self.cloth)
+        terms = self._potential.local_terms(x, extra=None if extra is None else extra.to(torch.float64),
+                                            rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
+                                            tiny=float(torch.finfo(x.dtype).tiny))
         if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
             force = self.force(x)
         else:
             force = terms.force.to(x.dtype)
             ties = tie_forces(x.detach(), self.cloth)
             force = force if ties is None else force + ties
-        contact = None if self.planes is None else terms.contact
-        extra = extra_blocks(self.cloth)
-        if extra is not None:
-            contact = extra.to(torch.float64) if contact is None else contact + extra.to(torch.float64)
-        inverse = compliance(terms.blocks, contact, rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
-                             tiny=float(torch.finfo(x.dtype).tiny))
+        contact = None if self.planes is None and extra is None else terms.contact
+        inverse = terms.compliance
         return force, None if contact is None else contact.to(x.dtype), inverse.to(x.dtype)

@@ -46,7 +46,8 @@ from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["LocalTerms", "compliance", "pair_blocks", "record_local_terms", "vertex_blocks", "vertex_compliance"]
+__all__ = ["LocalTerms", "compliance", "pair_blocks", "record_compliance", "record_local_terms", "vertex_blocks",
+           "vertex_compliance"]
 
 
 @defined_once
@@ -229,6 +230,7 @@ class LocalTerms:
     force: Tensor
     blocks: Tensor
     contact: Tensor
+    compliance: Tensor | None = None  # `compliance` of blocks + contact, where asked for
 
 
 def record_local_terms(x: Tensor, cloth: Cloth, out: LocalTerms, part: tuple[int, ...], *, external: Tensor | None,
@@ -295,20 +297,29 @@ def compliance(blocks: Tensor, extra: Tensor | None = None, *, rel: float, tiny:
     with K_i = blocks (+ extra), each (V, 3, 3) [N/m] → (V, 3, 3) [m/N] float64. The floor relative to
     each vertex's own stiffness keeps K_i invertible (a vertex of an unstretched flat patch has a
     rank-deficient block); tiny: the stiffness floor of a vertex without any [N/m]."""
-    wp = _kernels()["wp"]
     blocks = blocks.detach().to(torch.float64).contiguous()
     if extra is not None:
         if tuple(extra.shape) != tuple(blocks.shape):
             raise ValueError(f"extra blocks must have shape {tuple(blocks.shape)}, got {tuple(extra.shape)}")
         extra = extra.detach().to(torch.float64).contiguous()
     out = torch.empty_like(blocks)
-    if blocks.shape[0]:
+    launch = record_compliance(blocks, extra, out, rel=rel, tiny=tiny)
+    if launch is not None:
         with torch_stream(blocks.device):
-            wp.launch(_kernels()["compliance"], dim=blocks.shape[0], device=wp.device_from_torch(blocks.device),
-                      inputs=[launch_arg(blocks, wp.mat33d), launch_arg(blocks if extra is None else extra, wp.mat33d),
-                              int(extra is not None), float(rel), float(tiny)],
-                      outputs=[launch_arg(out, wp.mat33d)])
+            launch.launch()
     return out
+
+
+def record_compliance(blocks: Tensor, extra: Tensor | None, out: Tensor, *, rel: float, tiny: float):
+    """The launch of `compliance` from float64 blocks (V, 3, 3) (+ extra) into `out`, recorded
+    (`record_cmd`; None without vertices); the caller keeps the tensors alive while it is replayed."""
+    if not blocks.shape[0]:
+        return None
+    wp = _kernels()["wp"]
+    return wp.launch(_kernels()["compliance"], dim=blocks.shape[0], device=wp.device_from_torch(blocks.device),
+                     inputs=[launch_arg(blocks, wp.mat33d), launch_arg(blocks if extra is None else extra, wp.mat33d),
+                             int(extra is not None), float(rel), float(tiny)],
+                     outputs=[launch_arg(out, wp.mat33d)], record_cmd=True)
 
 
 @torch.no_grad()

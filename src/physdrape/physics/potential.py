@@ -36,7 +36,7 @@ from physdrape.physics import contact_kernels, element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.contact import sample_corners
 from physdrape.physics.forces import tie_energy_terms
-from physdrape.physics.majorant import LocalTerms, record_local_terms, zero_local_terms
+from physdrape.physics.majorant import LocalTerms, record_compliance, record_local_terms, zero_local_terms
 from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
@@ -119,6 +119,7 @@ class GarmentPotential:
         self._corners = sample_corners(cloth.faces, num_verts)
         self._planes: tuple[Tensor, Tensor] | None = None
         self._terms = zero_local_terms(num_verts, device)  # the buffers `local_terms` sums into
+        self._inverse = torch.zeros(num_verts, 3, 3, dtype=torch.float64, device=device)  # and inverts into
         self._launches: dict = {}  # recorded launches per thread count (Φ) and per ("local", thread count)
 
     def hold(self, planes: tuple[Tensor, Tensor] | None) -> None:
@@ -141,31 +142,46 @@ class GarmentPotential:
         for held, plane in zip(self._planes, planes):
             held.copy_(plane.detach())
 
-    def local_terms(self, x: Tensor) -> LocalTerms:
+    def local_terms(self, x: Tensor, *, extra: Tensor | None = None, rel: float | None = None,
+                    tiny: float = 0.0) -> LocalTerms:
         """The force −∇Φ and the stiffness blocks at positions x (V, 3) [m] on the held planes, in
         one launch (`physics.majorant.LocalTerms`, float64): the force of the strain, bending,
         gravity, external and contact terms (the ties' are the caller's: `forces.tie_forces`),
         the majorant's vertex blocks and the contact's blocks, samples within `band` of their
-        plane taken at depth ≥ ε (`contact.plane_contact_blocks`). Not differentiated."""
+        plane taken at depth ≥ ε (`contact.plane_contact_blocks`), plus `extra` (V, 3, 3) [N/m]
+        if given; with `rel`, also the inverses of the vertices' blocks and contact blocks, floored
+        by rel and tiny (`physics.majorant.compliance`), in a second launch. Not differentiated."""
         if tuple(x.shape) != (self.cloth.num_verts, 3):
             raise ValueError(f"x must be the cloth's packed positions ({self.cloth.num_verts}, 3), got {tuple(x.shape)}")
         threads = torch.get_num_threads() if x.device.type == "cpu" else 1
+        terms = self._terms
         with torch.no_grad():
             self._x[0].copy_(x.detach())
-            for buffer in (self._terms.force, self._terms.blocks, self._terms.contact):
+            for buffer in (terms.force, terms.blocks, terms.contact):
                 buffer.zero_()
             with torch_stream(x.device):
                 key = ("local", threads)
                 launches = self._launches.get(key)
                 if launches is None:
                     launches = self._launches[key] = [
-                        record_local_terms(self._x, self.cloth, self._terms, part, external=self._external,
+                        record_local_terms(self._x, self.cloth, terms, part, external=self._external,
                                            corners=self._corners, planes=self._planes, stiffness=self.stiffness,
                                            margin=self.margin, band=self.band)
                         for part in _garment_parts(self.cloth, threads)]
                 run_parts(lambda k: launches[k].launch(), [(k,) for k in range(len(launches)) if launches[k]],
                           "elements")
-            return LocalTerms(*(t.clone() for t in (self._terms.force, self._terms.blocks, self._terms.contact)))
+                if extra is not None:
+                    terms.contact.add_(extra.detach())
+                inverse = None
+                if rel is not None:
+                    key = ("compliance", float(rel), float(tiny))
+                    if key not in self._launches:
+                        self._launches[key] = record_compliance(terms.blocks, terms.contact, self._inverse, rel=rel,
+                                                                tiny=tiny)
+                    if self._launches[key] is not None:
+                        self._launches[key].launch()
+                    inverse = self._inverse.clone()
+            return LocalTerms(terms.force.clone(), terms.blocks.clone(), terms.contact.clone(), inverse)
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64, at positions x (V, 3) [m]; not differentiated."""
