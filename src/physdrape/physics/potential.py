@@ -36,7 +36,12 @@ from physdrape.physics import contact_kernels, element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.contact import sample_corners
 from physdrape.physics.forces import tie_energy_terms
-from physdrape.physics.majorant import LocalTerms, record_compliance, record_local_terms, zero_local_terms
+from physdrape.physics.majorant import (
+    LocalTerms,
+    record_compliance,
+    record_local_terms,
+    zero_local_terms,
+)
 from physdrape.tensor_memo import TensorMemo
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
