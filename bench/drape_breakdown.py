@@ -14,10 +14,11 @@ spent in each, with how often it ran:
   body surface (its BVH), the doubtful faces of a new body (`BodySurface.doubtful_faces`) and
   X_init (skinning transfer and strain limiting, its queries included);
 - the graph inputs and the GNN;
-- the stretching solver, and within it the body requeries, the coarse factorisations, the
-  stiffness blocks and their inverses, the forces, the contact blocks, the coarse solves, the
-  stiffness products of the first steps' inner iterations and the line-search potentials (the
-  rest: the conjugation, clips and updates);
+- the stretching solver, and within it the body requeries, the coarse factorisations, each
+  step's forces with the stiffness and contact blocks and their inverses (one launch and its
+  inversion, `_Relaxation.step_terms`), the coarse solves, the stiffness products of the first
+  steps' inner iterations and the line-search potentials (the rest: the conjugation, clips and
+  updates);
 - the collision handler and the metrics (the drape's `metrics_s`);
 - across all of them, the time inside Warp kernels (compiled code), and of that the BVH searches
   (closest faces, winding numbers, rays): what a faster Python or torch layer cannot remove.
@@ -51,9 +52,7 @@ PHASES = [
     ("stretching solver", "physdrape.model.stretching_solver", "StretchingSolver", "forward", 0),
     ("body requeries", "physdrape.model.stretching_solver", "_Relaxation", "requery", 1),
     ("coarse factorisations", "physdrape.physics.coarse_space", "CoarseSpace", "factor", 1),
-    ("stiffness blocks and inverses", "physdrape.model.stretching_solver", "StretchingSolver", "_stiffness_inverse", 1),
-    ("forces", "physdrape.model.stretching_solver", "_Relaxation", "force", 1),
-    ("contact blocks", "physdrape.model.stretching_solver", "_Relaxation", "contact_blocks", 1),
+    ("forces, stiffness blocks and inverses", "physdrape.model.stretching_solver", "_Relaxation", "step_terms", 1),
     ("coarse solves", "physdrape.physics.coarse_space", "CoarseSpace", "solve", 1),
     ("stiffness products (inner iterations)", "physdrape.physics.coarse_space", "CoarseSpace", "stiffness_product", 1),
     ("line-search potentials", "physdrape.model.stretching_solver", "_Relaxation", "potential", 1),
