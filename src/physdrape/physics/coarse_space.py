@@ -66,7 +66,7 @@ from physdrape.physics.coarse_factor import (
     regularized_cholesky,
 )
 from physdrape.physics.forces import links
-from physdrape.physics.majorant import pair_blocks
+from physdrape.physics.majorant import PairBlocks
 from physdrape.threads import one_blas_thread
 
 __all__ = ["CoarseSpace"]
@@ -367,6 +367,7 @@ class CoarseSpace:
         self._factors: list | None = None  # band: one per garment (NumPy); dense: (count, n, n) per group
         self._gram: list[Tensor] | None = None
         self.blocks: Tensor | None = None  # K at the last `factor`: a 3 × 3 block per vertex pair, float64
+        self._pair_blocks: PairBlocks | None = None  # the strain majorant's pair blocks, recorded at the first factor
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
@@ -376,7 +377,9 @@ class CoarseSpace:
         vertex_blocks must then include for K to be PSD."""
         s = self._s
         with torch.no_grad():
-            blocks = pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
+            if self._pair_blocks is None:
+                self._pair_blocks = PairBlocks(self.cloth, s.pair_of_corner, s.num_pairs)
+            blocks = self._pair_blocks(x)
             if vertex_blocks is not None:
                 blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
             if self._links is not None:

@@ -46,7 +46,7 @@ from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["LocalTerms", "compliance", "pair_blocks", "record_compliance", "record_local_terms", "vertex_blocks",
+__all__ = ["LocalTerms", "PairBlocks", "compliance", "pair_blocks", "record_compliance", "record_local_terms", "vertex_blocks",
            "vertex_compliance"]
 
 
@@ -336,29 +336,54 @@ def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int)
 
     pair_of_corner (F, 9) int32, on x's device: for face f and corners a, b, the pair that face
     f's block (a, b) is added to (rows of vertex a, columns of vertex b), entry 3a + b. With
-    ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3).
+    ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3). A caller
+    that forms them at many positions keeps a `PairBlocks`.
     """
-    wp = _kernels()["wp"]
-    out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=x.device)
-    if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
-        raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
-                         f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
-    if not cloth.faces.shape[0]:
-        return out
-    constant = element_kernels.kernel_constant
-    per_face = [(constant(cloth.faces), wp.int32), (constant(cloth.rest_inv), wp.mat22d),
-                (constant(cloth.volume), wp.float64), (constant(cloth.mu), wp.float64), (constant(cloth.lam), wp.float64),
-                (pair_of_corner.contiguous(), wp.int32)]
-    x64 = launch_arg(x.detach().to(torch.float64).contiguous(), wp.vec3d)
-    target = launch_arg(out, wp.mat33d)
+    blocks = PairBlocks(cloth, pair_of_corner, num_pairs)
+    return blocks(x)
 
-    def launch(lo: int, hi: int) -> None:
-        wp.launch(_kernels()["strain_pair"], dim=hi - lo, device=wp.device_from_torch(x.device), outputs=[target],
-                  inputs=[x64, *(launch_arg(t[lo:hi], kind) for t, kind in per_face)])
 
-    # a face's pairs are pairs of its garment: the garments' pairs are disjoint, and on the CPU with
-    # several torch threads a packed batch's faces are split between threads (`physdrape.threads`)
-    threads = torch.get_num_threads() if x.device.type == "cpu" else 1
-    with torch_stream(x.device):
-        run_parts(launch, disjoint_parts(per_face[0][0], threads), "elements")
-    return out
+class PairBlocks:
+    """`pair_blocks` of one cloth at many positions: the launch (one per part of a packed batch
+    split between CPU threads) recorded once on buffers of its own, replayed at each call.
+
+    Returns a fresh tensor per call (the buffer is copied out)."""
+
+    def __init__(self, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int) -> None:
+        if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
+            raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
+                             f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
+        device = cloth.faces.device
+        self.cloth, self.pair_of_corner = cloth, pair_of_corner.contiguous()
+        self._x = torch.zeros(cloth.num_verts, 3, dtype=torch.float64, device=device)
+        self._out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=device)
+        self._launches: dict[int, list] = {}  # per thread count
+
+    def __call__(self, x: Tensor) -> Tensor:
+        """The blocks at positions x (V, 3) [m], (num_pairs, 3, 3) float64."""
+        self._out.zero_()
+        if not self.cloth.faces.shape[0]:
+            return self._out.clone()
+        # a face's pairs are pairs of its garment: the garments' pairs are disjoint, and on the CPU
+        # with several torch threads a packed batch's faces are split between threads
+        threads = torch.get_num_threads() if x.device.type == "cpu" else 1
+        with torch.no_grad():
+            self._x.copy_(x.detach())
+            launches = self._launches.get(threads)
+            if launches is None:
+                launches = self._launches[threads] = [
+                    self._record(lo, hi) for lo, hi in disjoint_parts(element_kernels.kernel_constant(self.cloth.faces),
+                                                                      threads)]
+            with torch_stream(x.device):
+                run_parts(lambda k: launches[k].launch(), [(k,) for k in range(len(launches))], "elements")
+        return self._out.clone()
+
+    def _record(self, lo: int, hi: int):
+        wp = _kernels()["wp"]
+        constant = element_kernels.kernel_constant
+        per_face = [(constant(self.cloth.faces), wp.int32), (constant(self.cloth.rest_inv), wp.mat22d),
+                    (constant(self.cloth.volume), wp.float64), (constant(self.cloth.mu), wp.float64),
+                    (constant(self.cloth.lam), wp.float64), (self.pair_of_corner, wp.int32)]
+        return wp.launch(_kernels()["strain_pair"], dim=hi - lo, device=wp.device_from_torch(self._x.device),
+                         inputs=[launch_arg(self._x, wp.vec3d), *(launch_arg(t[lo:hi], kind) for t, kind in per_face)],
+                         outputs=[launch_arg(self._out, wp.mat33d)], record_cmd=True)
