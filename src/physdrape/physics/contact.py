@@ -14,8 +14,9 @@ Gauss–Newton blocks 6 k_c ReLU(ε − d) n nᵀ are the exact Hessian.
 Every user (the training loss, the stretching solver, the physics oracle, the evaluation's
 total energy) calls these functions with its own stiffness k_c [J/m³] and margin ε [m]. The
 distances, forces and blocks on planes (`plane_distance`, `plane_contact_forces`,
-`plane_contact_blocks`) are Warp kernels (`physics.contact_kernels`): the solver evaluates them
-several times per step.
+`plane_contact_blocks`) are Warp kernels (`physics.contact_kernels`), whose per-sample functions
+the stretching solver's one launch per step composes with the garment's own terms
+(`physics.potential.GarmentPotential.local_terms`); training differentiates `plane_contact_forces`.
 """
 
 from __future__ import annotations

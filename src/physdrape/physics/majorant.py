@@ -224,8 +224,9 @@ def _kernels():
 class LocalTerms:
     """What a solver step needs of each vertex at positions x, float64, (V, ...) each: the force
     −∇Φ (V, 3) [N] (strain, bending, gravity, the external force, the contact on held planes), the
-    strain and bending majorant's 3×3 blocks (V, 3, 3) [N/m] and the contact's Gauss–Newton blocks
-    (V, 3, 3) [N/m] (zero without planes)."""
+    strain and bending majorant's 3×3 blocks (V, 3, 3) [N/m], the contact's Gauss–Newton blocks
+    (V, 3, 3) [N/m] (zero without planes; plus any extra blocks the caller adds) and, where asked
+    for, the inverses of their floored sums (V, 3, 3) [m/N] (`compliance`)."""
 
     force: Tensor
     blocks: Tensor
