@@ -20,6 +20,7 @@ equally by its corners (∂s/∂x_a = I/3).
 """
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
+from typing import Any
 
 from physdrape.geometry import closest_point
 from physdrape.warp_runtime import defined_once, warp
@@ -74,29 +75,16 @@ def kernels() -> dict:
         return (f64(6.0) * stiffness * depth) * wp.outer(n, n)
 
     @wp.func
-    def spread_force(out: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32), b: int, s: int,
-                     value: wp.vec3d):
-        """A sample's force onto its vertex, or a third onto each corner of its face."""
+    def spread(out: wp.array2d(dtype=Any), corners: wp.array2d(dtype=wp.int32), b: int, s: int, value: Any,
+               centroid_share: wp.float64):
+        """A sample's force or block onto its vertex, or value / centroid_share onto each corner of
+        its face (a force's third, a block's ninth: ∂s/∂x_a = I/3)."""
         a = corners[s, 0]
         c = corners[s, 1]
         if a == c:
             wp.atomic_add(out, b, a, value)
         else:
-            share = value / f64(3.0)
-            wp.atomic_add(out, b, a, share)
-            wp.atomic_add(out, b, c, share)
-            wp.atomic_add(out, b, corners[s, 2], share)
-
-    @wp.func
-    def spread_block(out: wp.array2d(dtype=wp.mat33d), corners: wp.array2d(dtype=wp.int32), b: int, s: int,
-                     value: wp.mat33d):
-        """A sample's block onto its vertex, or a ninth onto each corner of its face (∂s/∂x_a = I/3)."""
-        a = corners[s, 0]
-        c = corners[s, 1]
-        if a == c:
-            wp.atomic_add(out, b, a, value)
-        else:
-            share = value / f64(9.0)
+            share = value / centroid_share
             wp.atomic_add(out, b, a, share)
             wp.atomic_add(out, b, c, share)
             wp.atomic_add(out, b, corners[s, 2], share)
@@ -110,7 +98,7 @@ def kernels() -> dict:
         b, s = wp.tid()
         d = plane_distance(x, corners, closest, normal, b, s)
         if d < margin:
-            spread_force(out, corners, b, s, sample_force(d, normal[s], stiffness, margin))
+            spread(out, corners, b, s, sample_force(d, normal[s], stiffness, margin), f64(3.0))
 
     @wp.kernel(enable_backward=False)
     def blocks_kernel(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
@@ -121,7 +109,7 @@ def kernels() -> dict:
         b, s = wp.tid()
         d = plane_distance(x, corners, closest, normal, b, s)
         if d < wp.max(band, margin):
-            spread_block(out, corners, b, s, sample_block(d, normal[s], stiffness, margin, band))
+            spread(out, corners, b, s, sample_block(d, normal[s], stiffness, margin, band), f64(9.0))
 
     geometry = closest_point.kernels()
     walk, surface_point = geometry["walk_func"], geometry["surface_point"]
@@ -171,5 +159,4 @@ def kernels() -> dict:
 
     return {"follow": follow_kernel, "distance": distance_kernel, "force": force_kernel, "blocks": blocks_kernel,
             "plane_distance": plane_distance, "penalty": penalty,
-            "sample_force": sample_force, "sample_block": sample_block, "spread_force": spread_force,
-            "spread_block": spread_block}
+            "sample_force": sample_force, "sample_block": sample_block, "spread": spread}

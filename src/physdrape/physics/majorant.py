@@ -61,7 +61,7 @@ def _kernels():
     hinge_gradients = shared["hinge_gradients"]
     contact = contact_kernels.kernels()  # a sample's distance, force and block on its held plane
     plane_distance, sample_force, sample_block = contact["plane_distance"], contact["sample_force"], contact["sample_block"]
-    spread_force, spread_block = contact["spread_force"], contact["spread_block"]
+    spread = contact["spread"]
 
     @wp.func
     def abs_part(s: wp.mat22d) -> wp.mat22d:
@@ -119,9 +119,9 @@ def _kernels():
         """Sample s's contact force and block on its held plane, onto its vertex or its face's corners."""
         d = plane_distance(x, corners, closest, normal, 0, s)
         if d < margin:
-            spread_force(force, corners, 0, s, sample_force(d, normal[s], stiffness, margin))
+            spread(force, corners, 0, s, sample_force(d, normal[s], stiffness, margin), f64(3.0))
         if d < wp.max(band, margin):
-            spread_block(contact, corners, 0, s, sample_block(d, normal[s], stiffness, margin, band))
+            spread(contact, corners, 0, s, sample_block(d, normal[s], stiffness, margin, band), f64(9.0))
 
     @wp.kernel(enable_backward=False)
     def local_terms_kernel(x: wp.array2d(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
