@@ -153,7 +153,8 @@ class PlaneFollower:
 
     @torch.no_grad()
     def __call__(self, x: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor) -> FollowedPlanes:
-        """`follow_planes` of positions x (V, 3) [m] from these planes (module docstring there)."""
+        """`follow_planes` of positions x (V, 3) [m] from these planes (closest points, normals,
+        faces and where each sample was when its plane was found, (V + F, ...) each)."""
         if tuple(x.shape) != tuple(self._x.shape[1:]):
             raise ValueError(f"x must be the cloth's positions {tuple(self._x.shape[1:])}, got {tuple(x.shape)}")
         self._x[0].copy_(x.detach())

@@ -125,7 +125,9 @@ class GarmentPotential:
         self._planes: tuple[Tensor, Tensor] | None = None
         self._terms = zero_local_terms(num_verts, device)  # the buffers `local_terms` sums into
         self._inverse = torch.zeros(num_verts, 3, 3, dtype=torch.float64, device=device)  # and inverts into
-        self._launches: dict = {}  # recorded launches per thread count (Φ) and per ("local", thread count)
+        # recorded launches: Φ's per thread count, the local terms' per ("local", thread count), the
+        # compliance's per ("compliance", rel, tiny)
+        self._launches: dict = {}
 
     def hold(self, planes: tuple[Tensor, Tensor] | None) -> None:
         """Evaluate the contact on these planes from now on: the samples' closest points and unit
