@@ -367,6 +367,8 @@ class _Relaxation:
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
         self._follower: PlaneFollower | None = None  # the local requeries' recorded launch (made at the first)
+        extra = extra_blocks(cloth)  # independent of x: formed once per solve, in the local terms' float64
+        self._extra = None if extra is None else extra.to(torch.float64)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
 
     def without_f_hat(self) -> _Relaxation:
@@ -441,8 +443,8 @@ class _Relaxation:
           [m/N], each floored relative to its own stiffness (`physics.majorant.compliance`): each
           vertex gets the compliance of its own stiffness.
         """
-        extra = extra_blocks(self.cloth)
-        terms = self._potential.local_terms(x, extra=None if extra is None else extra.to(torch.float64),
+        extra = self._extra
+        terms = self._potential.local_terms(x, extra=extra,
                                             rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
                                             tiny=float(torch.finfo(x.dtype).tiny))
         if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
