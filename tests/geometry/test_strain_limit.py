@@ -116,7 +116,7 @@ def reference_limit_edge_stretch(x, edges, rest_lengths, *, body=None, **kwargs)
 
 
 def _reference_one(x, edges, rest_lengths, *, max_stretch=1.5, iterations=100, relaxation=1.5,
-                   body=None, margin=2e-3, requery_every=10, momentum=0.0):
+                   body=None, margin=2e-3, requery_every=10, reach=1e-2, momentum=0.0):
     """`reference_limit_edge_stretch` of one mesh."""
     # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies: a
     # 2-D index_add is much faster on CPU than one along dim -2 of a 3-D tensor.
@@ -128,17 +128,23 @@ def _reference_one(x, edges, rest_lengths, *, max_stretch=1.5, iterations=100, r
     j = (edges[:, 1][None] + offsets).reshape(-1)
     ends = torch.cat([i, j])
     bound = (max_stretch * rest_lengths.to(x.dtype)).expand(*shape[:-2], edges.shape[0]).reshape(-1)
-    planes, floor = None, None
+    planes, floor, found = None, None, None
     velocity = torch.zeros_like(flat)
     previous = None
     x = flat
     for sweep in range(iterations):
         if body is not None and sweep % requery_every == 0:
+            # the vertices that may have come within reach of the body since their planes were found
+            rows = (torch.arange(x.shape[0]) if found is None
+                    else torch.nonzero(found[1] - (x - found[0]).norm(dim=-1) < reach)[:, 0])
             with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
-                query = body.query(x.detach().reshape(shape).to(body.verts.dtype))
-            planes = query.closest.reshape(-1, 3).to(x.dtype), query.normal.reshape(-1, 3).to(x.dtype)
-            if floor is None:  # never deeper than at the start, never into the margin
-                floor = query.signed_distance.reshape(-1).to(x.dtype).clamp_max(margin)
+                query = body.query(x.detach()[rows].to(body.verts.dtype))
+            closest, normal, distance = (t.to(x.dtype) for t in (query.closest, query.normal, query.signed_distance))
+            if planes is None:
+                planes, found = (closest, normal), (x.clone(), distance)
+                floor = distance.clamp_max(margin)  # never deeper than at the start, never into the margin
+            else:
+                planes[0][rows], planes[1][rows], found[0][rows], found[1][rows] = closest, normal, x[rows], distance
         d = x[j] - x[i]
         length = d.norm(dim=-1)
         excess = (length - bound).clamp_min(0.0)
@@ -197,6 +203,31 @@ def test_kernels_match_the_torch_reference_with_a_body(contracting_garment):
                                reference_limit_edge_stretch(x, e, rest, **kwargs), rtol=0.0, atol=1e-12)
     single = limit_edge_stretch(x.to(torch.float32), e, rest, **kwargs)
     assert single.dtype == torch.float32
+
+
+def test_only_vertices_within_reach_are_queried_again(contracting_garment):
+    """After the first query, a vertex is queried again only once it may have come within `reach`
+    of the body (its distance then less its move since): the garment skinned 3 cm out is not
+    searched again while it contracts from afar, and ends where querying every vertex at every
+    requery leaves it (a plane held far from the body pushes nothing)."""
+    body, x, e, rest = contracting_garment
+    asked = []
+    query = body.query
+
+    def counting(points, **kwargs):
+        asked.append(points.reshape(-1, 3).shape[0])
+        return query(points, **kwargs)
+
+    body.query = counting
+    kwargs = {"max_stretch": 1.02, "iterations": 400, "momentum": 0.9, "body": body, "margin": 2e-3}
+    out = limit_edge_stretch(x, e, rest, **kwargs)
+    assert asked[0] == x.shape[0] and min(asked[1:]) == 0 and max(asked[1:]) == x.shape[0]
+    calls = len(asked)
+    every = limit_edge_stretch(x, e, rest, reach=float("inf"), **kwargs)
+    assert set(asked[calls:]) == {x.shape[0]}
+    torch.testing.assert_close(out, every, rtol=0.0, atol=1e-12)
+    with pytest.raises(ValueError, match="reach"):
+        limit_edge_stretch(x, e, rest, reach=-1.0, **kwargs)
 
 
 def test_a_batch_ends_each_mesh_where_it_ends_alone(contracting_garment):

@@ -45,6 +45,7 @@ def limit_edge_stretch(
     body: BodySurface | None = None,
     margin: float = 2e-3,
     requery_every: int = 10,
+    reach: float = 1e-2,
     momentum: float = 0.0,
 ) -> Tensor:
     """Project edges longer than ``max_stretch * rest`` toward that bound.
@@ -65,6 +66,11 @@ def limit_edge_stretch(
             a vertex deeper into the margin or the body; resolving what was already there is the
             collision handler's job).
         requery_every: sweeps between closest-point queries (the planes are held in between).
+        reach: at the queries after the first, only the vertices that may have come within this
+            distance [m] of the body since their planes were found are queried again (a vertex
+            found at distance d that has moved m since is at least d − m away); the others keep
+            their planes, which push only at the floor, at most `margin` from the body: a loose
+            garment's far parts are searched once.
         momentum: heavy-ball momentum of the sweeps, in [0, 1) (0 = plain Jacobi); the velocity
             is reset whenever the total excess length grows (adaptive restart).
 
@@ -79,8 +85,8 @@ def limit_edge_stretch(
     if edges.ndim != 2 or edges.shape[1] != 2 or rest_lengths.shape[-1:] != edges.shape[:1]:
         raise ValueError(f"edges must be (E, 2) and rest_lengths (..., E), got {tuple(edges.shape)} and "
                          f"{tuple(rest_lengths.shape)}")
-    if requery_every < 1:
-        raise ValueError(f"requery_every must be >= 1, got {requery_every}")
+    if requery_every < 1 or not reach >= 0.0:
+        raise ValueError(f"need requery_every >= 1 and reach >= 0 [m], got {requery_every} and {reach}")
     if not 0.0 <= momentum < 1.0:
         raise ValueError(f"momentum must be in [0, 1), got {momentum}")
     # Work on the leading dimensions flattened into one (B·V, 3) mesh of B disjoint copies, in
@@ -112,7 +118,7 @@ def limit_edge_stretch(
     w_bound, w_count = wp.from_torch(bound, dtype=wp.float64), wp.from_torch(count, dtype=wp.float64)
     w_stats, w_active = wp.from_torch(stats, dtype=wp.float64), wp.from_torch(active, dtype=wp.int32)
     w_edge_copy, w_vertex_copy = wp.from_torch(copy_of_edge, dtype=wp.int32), wp.from_torch(copy_of_vertex, dtype=wp.int32)
-    held, previous, live = False, [None] * copies, [True] * copies
+    held, found, previous, live = False, None, [None] * copies, [True] * copies
     with torch_stream(x.device):
         # the sweeps' launches, recorded once (their arrays stay the same): a recorded launch
         # replays without packing its arguments again, which costs more than a small kernel's
@@ -130,11 +136,23 @@ def limit_edge_stretch(
         for sweep in range(iterations):
             if body is not None and sweep % requery_every == 0:
                 with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
-                    query = body.query(flat.reshape(shape).to(body.verts.dtype))
-                planes[0] = query.closest.reshape(-1, 3)
-                planes[1] = query.normal.reshape(-1, 3)
-                if not held:  # never deeper than at the start, never into the margin
+                    if not held:
+                        rows = None
+                        query = body.query(flat.reshape(shape).to(body.verts.dtype))
+                    else:  # the vertices of live meshes that may have come within reach since their planes were found
+                        near = found[:, 3] - (flat - found[:, :3]).norm(dim=-1) < reach
+                        rows = torch.nonzero(near & (active[copy_of_vertex] != 0))[:, 0]
+                        query = body.query(flat[rows].to(body.verts.dtype), body_index=copy_of_vertex[rows])
+                if rows is None:
+                    planes[0] = query.closest.reshape(-1, 3)
+                    planes[1] = query.normal.reshape(-1, 3)
+                    # never deeper than at the start, never into the margin
                     planes[2, :, 0] = query.signed_distance.reshape(-1).to(torch.float64).clamp_max(margin)
+                    found = torch.cat([flat, query.signed_distance.reshape(-1, 1).to(torch.float64)], 1)
+                else:
+                    planes[0, rows] = query.closest.to(torch.float64)
+                    planes[1, rows] = query.normal.to(torch.float64)
+                    found[rows] = torch.cat([flat[rows], query.signed_distance[:, None].to(torch.float64)], 1)
                 held = True
             stats.zero_()
             edge.launch()
