@@ -8,6 +8,7 @@ from physdrape.config_io import ConfigError, from_mapping, to_mapping
 from physdrape.geometry.garment import GarmentBatch
 from physdrape.model import DrapeInput, ModelConfig, PhysDrape, Variant
 from physdrape.model.gnn import ProcessorBlock, level_schedule
+from physdrape.model.physdrape import network_parts
 from physdrape.physics import Cloth, Material
 from physdrape.physics.energy import drape_energies
 from physdrape.train.loss import LossConfig, drape_loss
@@ -118,6 +119,29 @@ def test_packed_batch_with_coarse_levels_equals_garments_alone(two_tubes):
     a, b = GarmentBatch.pack(two_tubes).split(together)
     torch.testing.assert_close(a, model(make_input(two_tubes[:1], [0.15])).x, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(b, model(make_input(two_tubes[1:], [0.13])).x, rtol=1e-5, atol=1e-6)
+
+
+def test_network_in_pieces_equals_the_whole_graph(two_tubes):
+    """The network run garment by garment (`parts`) gives the batch graph's output and gradients;
+    `network_parts` groups consecutive garments into pieces of at most so many vertices (float64:
+    the gradients sum the garments' terms in another order)."""
+    torch.manual_seed(0)
+    model = PhysDrape(ModelConfig(latent=16, blocks=5, levels=2)).eval()
+    batch = make_input(two_tubes, [0.15, 0.13])
+    nodes, edges, graph = model.graph_inputs(batch)
+    network = model.gnn.double()
+    nodes, edges = nodes.double().requires_grad_(True), edges.double()
+    offsets = batch.garments.vert_offsets.tolist()
+    whole = network(nodes, edges, graph)
+    pieces = network(nodes, edges, graph, parts=offsets)
+    torch.testing.assert_close(pieces, whole, rtol=1e-12, atol=1e-12)
+    weights = torch.randn_like(whole)
+    got = torch.autograd.grad((pieces * weights).sum(), [nodes, *network.parameters()])
+    want = torch.autograd.grad((whole * weights).sum(), [nodes, *network.parameters()])
+    for g, w in zip(got, want):
+        torch.testing.assert_close(g, w, rtol=1e-10, atol=1e-12)
+    assert network_parts([0, 3000, 6000, 7000, 12000, 12500], most=4096) == [0, 3000, 7000, 12000, 12500]
+    assert network_parts(offsets) == [0, offsets[-1]] and network_parts([0]) == [0]
 
 
 def test_zero_initialised_output_starts_at_x_init(two_tubes):

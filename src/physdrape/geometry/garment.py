@@ -142,6 +142,22 @@ class GraphLevels:
     def edge_counts(self) -> list[int]:
         return [int(e.shape[1]) for e in self.local_edge_index]
 
+    def part(self, start: int, stop: int) -> tuple[GraphLevels, list[Tensor]]:
+        """The graphs of the batch vertices [start, stop) alone (whole garments: no edge leaves
+        them), their vertex ids shifted to start at 0, and per level the positions of their edges
+        among the level's edges (for cutting per-edge values to match)."""
+        nodes, local, chosen = [], [], []
+        for ids, edges in zip(self.nodes, self.local_edge_index):
+            lo, hi = (int(k) for k in torch.searchsorted(ids, torch.tensor([start, stop], device=ids.device)))
+            picked = torch.nonzero((edges[0] >= lo) & (edges[0] < hi))[:, 0]
+            nodes.append(ids[lo:hi] - start)
+            local.append(edges[:, picked] - lo)
+            chosen.append(picked)
+        sizes = [int(k.shape[0]) for k in chosen]
+        level = torch.cat([torch.full((n,), l, dtype=torch.int64, device=self.level.device) for l, n in enumerate(sizes)])
+        edge_index = torch.cat([ids[e] for ids, e in zip(nodes, local)], dim=1)
+        return GraphLevels(edge_index, level, tuple(nodes), tuple(local)), chosen
+
 
 @dataclass(frozen=True)
 class GarmentBatch:
