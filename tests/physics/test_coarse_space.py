@@ -18,10 +18,11 @@ from physdrape.physics.layers import LayerOrder
 from physdrape.physics.stitches import Stitches
 
 
-def _batch():
+def _batch(sheets: int = 1):
+    """A sheet and a tube, then `sheets` − 1 more of the same sheet (one topology: formed together)."""
     sheet = Garment.from_mesh(*grid_sheet(12, 10, width=0.4, height=0.3), name="sheet", dtype=torch.float64)
     tube = Garment.from_mesh(*open_cylinder(6, 14, radius=0.12, length=0.3), name="tube", dtype=torch.float64)
-    batch = GarmentBatch.pack([sheet, tube])
+    batch = GarmentBatch.pack([sheet, tube] + [sheet] * (sheets - 1))
     gen = torch.Generator().manual_seed(0)
     x = batch.rest * 1.05 + 3e-3 * torch.randn(batch.rest.shape, generator=gen, dtype=torch.float64)
     return batch, Cloth.build(batch), x
@@ -79,8 +80,9 @@ def _linked(cloth, batch):
 
 
 @pytest.mark.parametrize("linked", [False, True], ids=["faces", "faces_and_links"])
-def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment(linked):
-    batch, cloth, x = _batch()
+@pytest.mark.parametrize("sheets", [1, 3], ids=["topologies", "a_topology_thrice"])
+def test_coarse_correction_equals_the_dense_galerkin_solve_per_garment(linked, sheets):
+    batch, cloth, x = _batch(sheets)
     gen = torch.Generator().manual_seed(1)
     extra = _contact_blocks(cloth.num_verts)
     if linked:
