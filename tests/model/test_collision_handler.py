@@ -113,3 +113,45 @@ def test_the_layer_pass_leaves_separated_layers_and_existing_crossings_alone(sph
                                    handler(apart, sphere, body_index))
         crossed, layers = _stack([5e-3, 4e-3])  # already crossed, nothing pushed: not the handler's business
         torch.testing.assert_close(handler(crossed, sphere, body_index, layers=layers), crossed)
+
+
+def test_a_distance_bound_leaves_out_only_what_is_pushed_by_nothing(sphere):
+    """A sheet over the sphere's pole (its middle inside, its rim centimetres off) and a bound
+    from a query of it a few millimetres away: the handler with the bound queries fewer vertices
+    and centroids and gives the same drape and gradients as without."""
+    from physdrape.geometry.distance_bound import DistanceBound
+    from physdrape.geometry.primitives import grid_sheet
+    from physdrape.physics.contact import contact_samples
+
+    verts, faces = grid_sheet(13, 13, width=0.24, height=0.24)
+    x = torch.tensor(verts - verts.mean(0) + [0.0, 0.0985, 0.0], dtype=torch.float64)
+    faces = torch.tensor(faces)
+    body_index = torch.zeros(x.shape[0], dtype=torch.int64)
+    gen = torch.Generator().manual_seed(2)
+    earlier = x + 3e-3 * torch.rand(x.shape, generator=gen, dtype=torch.float64)
+    samples = contact_samples(earlier, faces)
+    bound = DistanceBound.of(samples, sphere.query(samples).signed_distance)
+    handler = CollisionHandler(margin=2e-3, centroid_margin=5e-4).double()
+    asked = []
+    query = sphere.query
+
+    def counting(points, **kwargs):
+        asked.append(points.shape[0])
+        return query(points, **kwargs)
+
+    sphere.query = counting
+    try:
+        outs = []
+        for b in (None, bound):
+            xx = x.clone().requires_grad_(True)
+            out = handler(xx, sphere, body_index, faces=faces, bound=b)
+            grads = torch.autograd.grad((out * torch.arange(out.numel()).reshape(out.shape)).sum(),
+                                        [xx, handler.delta_raw])
+            outs.append((out.detach(), grads))
+    finally:
+        sphere.query = query
+    assert asked[:2] == [x.shape[0], faces.shape[0]] and asked[2] < x.shape[0] / 2 and asked[3] < faces.shape[0] / 2
+    assert float((outs[0][0] - x).norm(dim=-1).max()) > 1e-3  # the handler pushed something
+    torch.testing.assert_close(outs[1][0], outs[0][0], rtol=0, atol=1e-15)
+    for got, want in zip(outs[1][1], outs[0][1]):
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-12)

@@ -389,3 +389,24 @@ def test_inner_iterations_at_the_first_steps_by_mode(monkeypatch):
         assert calls == want
     with pytest.raises(ValueError, match="inner_iterations"):
         _solver(eta=1.0, inner_iterations=0)
+
+
+def test_the_bound_of_the_last_full_query_is_returned():
+    """`bounds` receives the samples and their signed distances at the last full body query
+    (step 4 of 6 with requery_every 4): a bound of the distances at the solve's end."""
+    batch, x0 = _case(radii=(0.16, 0.185))
+    solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=4, follow_planes=True)
+    trace, bounds = [], []
+    with torch.no_grad():
+        x = solver(x0, batch.cloth, f_hat=None, steps=6, trace=trace, bodies=batch.bodies, body_index=batch.body_index,
+                   bounds=bounds)
+    [bound] = bounds
+    index = torch.cat([batch.body_index, batch.body_index[batch.cloth.faces[:, 0]]])
+    torch.testing.assert_close(bound.at, _samples(trace[3], batch.cloth), rtol=0, atol=1e-15)
+    torch.testing.assert_close(bound.distance, batch.bodies.query(bound.at, body_index=index).signed_distance,
+                               rtol=0, atol=1e-12)
+    truth = batch.bodies.query(_samples(x, batch.cloth), body_index=index).signed_distance
+    assert bool((bound.lower(_samples(x, batch.cloth)) <= truth + 1e-12).all())
+    no_body = []
+    solver(x0, batch.cloth, f_hat=None, steps=2, bounds=no_body)
+    assert no_body == []

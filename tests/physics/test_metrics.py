@@ -55,3 +55,24 @@ def test_energies_of_a_known_stretch_use_the_default_material():
     at_rest = drape_metrics(batch.rest, batch, box_body(), batch.vert_garment)
     # A flat sheet at rest feels only gravity: each vertex's force is exactly its weight.
     assert float(at_rest.residual_relative[0]) == pytest.approx(1.0, rel=1e-10)
+
+
+def test_a_distance_bound_gives_the_same_metrics():
+    """Sheets half inside the box, near it and far from it, with a bound from a query of them a
+    few millimetres away: the same metrics (and inside flags) as querying everything."""
+    from physdrape.geometry.distance_bound import DistanceBound
+    from physdrape.physics.contact import contact_samples, query_samples
+    from physdrape.physics.metrics import faces_inside
+
+    batch = GarmentBatch.pack([sheet_at(0.0, 0.3), sheet_at(0.0, 0.5005), sheet_at(2.0, 0.0)])
+    body, index = box_body(), torch.zeros_like(batch.vert_garment)
+    x = batch.rest
+    earlier = x + 3e-3 * torch.rand(x.shape, generator=torch.Generator().manual_seed(0), dtype=x.dtype)
+    bound = DistanceBound.of(contact_samples(earlier, batch.faces),
+                             query_samples(earlier, batch.faces, body, index).signed_distance)
+    inside = faces_inside(x, batch, body, index)
+    assert bool(inside.any()) and not bool(inside.all())
+    assert torch.equal(faces_inside(x, batch, body, index, bound=bound), inside)
+    want = drape_metrics(x, batch, body, index).as_dict()
+    got = drape_metrics(x, batch, body, index, bound=bound).as_dict()
+    assert got == want and want["close_percent"][1] > 0

@@ -34,6 +34,7 @@ from physdrape.api.wear import Wear, Wearing
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, internal_forces, relax
 from physdrape.physics.metrics import drape_metrics, faces_inside
@@ -448,7 +449,7 @@ class Draper:
                         margin=self.model_config.margin, callback=iteration_progress("oracle polish (refine)"))
             x = res.x.to(device=self.device, dtype=self.dtype)
         t4 = time.perf_counter()
-        results = self._results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm)
+        results = self._results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm, out.bound)
         t5 = time.perf_counter()
         timings = {"body_s": t1 - t0, "init_s": t2 - t1, "model_s": t3 - t2, "trace_s": t3b - t3, "refine_s": t4 - t3b,
                    "metrics_s": t5 - t4, "total_s": t5 - t0, "batch_size": float(len(jobs))}
@@ -461,16 +462,15 @@ class Draper:
         return results, nxt
 
     def _results(self, jobs: list[_Job], body_of: list[int], inp, x: Tensor, state: BodyState, convergence,
-                 warm) -> list[DrapeResult]:
-        """One `DrapeResult` per job (timings filled in by the caller)."""
+                 warm, bound: DistanceBound | None) -> list[DrapeResult]:
+        """One `DrapeResult` per job (timings filled in by the caller; `bound`: the model's, or None)."""
         batch, cloth, bodies = inp.garments, inp.cloth, inp.bodies
-        inside = faces_inside(x, batch, bodies, inp.body_index)
-        metrics = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside).as_dict()
+        inside = faces_inside(x, batch, bodies, inp.body_index, bound=bound)
+        metrics = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside, bound=bound).as_dict()
         weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
         residual = batch.split((internal_forces(x, cloth).norm(dim=-1) / weight)[:, None])
         inside = torch.split(inside, [int(n) for n in torch.bincount(batch.face_garment, minlength=len(jobs))])
-        xs, inits = batch.split(x), batch.split(inp.x_init)
-        body_faces = state.faces.cpu().numpy().astype(np.int64)
+        xs, inits, body_faces = batch.split(x), batch.split(inp.x_init), state.faces.cpu().numpy().astype(np.int64)
         return [DrapeResult(
             name=job.template.name,
             verts=xs[k].cpu().numpy(),

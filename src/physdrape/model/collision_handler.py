@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.contact import DEFAULT_MARGIN
 from physdrape.physics.layers import LayerOrder, layer_shortfall, push_outer_out
@@ -57,25 +58,37 @@ class CollisionHandler(nn.Module):
         return 1.0 + F.softplus(self.delta_raw)
 
     def forward(self, x: Tensor, bodies: BodySurface, body_index: Tensor, *, delta: Tensor | float | None = None,
-                faces: Tensor | None = None, layers: LayerOrder | None = None) -> Tensor:
+                faces: Tensor | None = None, layers: LayerOrder | None = None,
+                bound: DistanceBound | None = None) -> Tensor:
         """Project x (ΣV, 3) [m] out of the bodies; `body_index` (ΣV,) names each vertex's body;
         `faces` (ΣF, 3) (global vertex indices) enable the centroid pass, `layers` the layer pass.
 
-        `delta` overrides the learned δ (the Post-Col ablation uses a plain δ = 1).
+        `delta` overrides the learned δ (the Post-Col ablation uses a plain δ = 1). `bound`: a
+        `DistanceBound` of the vertices and then the face centroids (the solver's last full body
+        query): only the vertices and centroids it leaves within their margins are queried (the
+        others are pushed by nothing, values and gradients alike).
         """
         before = x
-        query = bodies.query(x, body_index=body_index)
+        num_verts = x.shape[0]
         delta = self.delta.to(x.dtype) if delta is None else delta
-        push = delta * (self.margin - query.signed_distance).clamp_min(0.0)
-        x = x + push[:, None] * query.normal
+        rows = None if bound is None else bound.part(0, num_verts).rows_below(x, self.margin)
+        query = bodies.query(x if rows is None else x[rows], body_index=body_index if rows is None else body_index[rows])
+        push = (delta * (self.margin - query.signed_distance).clamp_min(0.0))[:, None] * query.normal
+        x = x + push if rows is None else x.index_add(0, rows, push)
         if faces is not None and self.centroid_margin > 0:
-            x = self._push_centroids(x, faces, bodies, body_index)
+            x = self._push_centroids(x, faces, bodies, body_index,
+                                     None if bound is None else bound.part(num_verts, num_verts + faces.shape[0]))
         if layers is not None and len(layers.pairs):
             x = push_outer_out(x, layers, allowed=layer_shortfall(before, layers))
         return x
 
-    def _push_centroids(self, x: Tensor, faces: Tensor, bodies: BodySurface, body_index: Tensor) -> Tensor:
-        query = bodies.query(x[faces].mean(dim=1), body_index=body_index[faces[:, 0]])
+    def _push_centroids(self, x: Tensor, faces: Tensor, bodies: BodySurface, body_index: Tensor,
+                        bound: DistanceBound | None) -> Tensor:
+        centroids, owner = x[faces].mean(dim=1), body_index[faces[:, 0]]
+        rows = None if bound is None else bound.rows_below(centroids, self.centroid_margin)
+        if rows is not None:
+            centroids, owner, faces = centroids[rows], owner[rows], faces[rows]
+        query = bodies.query(centroids, body_index=owner)
         push = (self.centroid_margin - query.signed_distance).clamp_min(0.0)
         hit = push > 0
         if not bool(hit.any()):

@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor, nn
 
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.garment import GarmentBatch, GraphLevels
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model.collision_handler import CollisionHandler
@@ -48,12 +49,15 @@ class DrapeInput:
 
 @dataclass(frozen=True)
 class DrapeOutput:
-    """x: the drape X* [m] (ΣV, 3); x_gnn: X_init + Δx; f_hat: f̂ [N] (ΣV, 3); trace: solver states."""
+    """x: the drape X* [m] (ΣV, 3); x_gnn: X_init + Δx; f_hat: f̂ [N] (ΣV, 3); trace: solver states;
+    bound: the `DistanceBound` of the solver's last full body query (vertices, then face
+    centroids; None without one), for later queries of x to skip what is far from the body."""
 
     x: Tensor
     x_gnn: Tensor
     f_hat: Tensor
     trace: tuple[Tensor, ...]
+    bound: DistanceBound | None = None
 
 
 #: The most vertices the network processes as one piece of a batch (`network_parts`): a
@@ -158,15 +162,17 @@ class PhysDrape(nn.Module):
                  keep_trace: bool) -> DrapeOutput:
         """The variant's solver and handler from the network's output x_gnn (ΣV, 3) and f̂."""
         cfg = self.config
-        x, trace = x_gnn, []
+        x, trace, bounds = x_gnn, [], []
         if cfg.variant.uses_solver:
             if steps is None:
                 steps = cfg.train_steps if self.training else cfg.eval_steps
             x = self.solver(x, batch.cloth, f_hat=f_hat, steps=steps, trace=trace if keep_trace else None,
-                            bodies=batch.bodies, body_index=batch.body_index)
+                            bodies=batch.bodies, body_index=batch.body_index, bounds=bounds)
+        bound = bounds[0] if bounds else None
         if cfg.variant.uses_handler:
-            x = self.handler(x, batch.bodies, batch.body_index, faces=batch.garments.faces, layers=batch.cloth.layers)
+            x = self.handler(x, batch.bodies, batch.body_index, faces=batch.garments.faces, layers=batch.cloth.layers,
+                             bound=bound)
         elif cfg.variant is Variant.POST_COL and not self.training:
             x = self.handler(x, batch.bodies, batch.body_index, delta=1.0, faces=batch.garments.faces,
-                             layers=batch.cloth.layers)
-        return DrapeOutput(x=x, x_gnn=x_gnn, f_hat=f_hat, trace=tuple(trace))
+                             layers=batch.cloth.layers, bound=bound)
+        return DrapeOutput(x=x, x_gnn=x_gnn, f_hat=f_hat, trace=tuple(trace), bound=bound)

@@ -10,6 +10,7 @@ from functools import partial
 import torch
 from torch import Tensor, nn
 
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
@@ -167,15 +168,18 @@ class StretchingSolver(nn.Module):
         return torch.sigmoid(self.gamma_logit)
 
     def forward(self, x: Tensor, cloth: Cloth, *, f_hat: Tensor | None, steps: int, trace: list | None = None,
-                bodies: BodySurface | None = None, body_index: Tensor | None = None) -> Tensor:
+                bodies: BodySurface | None = None, body_index: Tensor | None = None,
+                bounds: list | None = None) -> Tensor:
         """Run `steps` solver steps from x (ΣV, 3) [m]; f̂ (ΣV, 3) [N] or None (pure relaxation).
 
         bodies / body_index (ΣV,): the posed bodies and each vertex's body, for the two-level
         solver's contact term (ignored by the explicit one; None = no contact). If `trace` is a
-        list, the state after each step is appended to it.
+        list, the state after each step is appended to it; if `bounds` is, the two-level solver
+        appends the `DistanceBound` of its last full body query (the samples: vertices, then face
+        centroids), which lets later queries skip the samples far from the body.
         """
         if self.kind is SolverKind.TWO_LEVEL:
-            return self._two_level(x, cloth, f_hat, steps, trace, bodies, body_index)
+            return self._two_level(x, cloth, f_hat, steps, trace, bodies, body_index, bounds)
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
         step = eta
         for t in range(steps):
@@ -201,7 +205,7 @@ class StretchingSolver(nn.Module):
         return clip_moves(move, self.max_step)
 
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
-                   bodies: BodySurface | None, body_index: Tensor | None) -> Tensor:
+                   bodies: BodySurface | None, body_index: Tensor | None, bounds: list | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
         problem = self._relaxation(cloth, f_hat)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
@@ -251,6 +255,8 @@ class StretchingSolver(nn.Module):
             step = step * gamma
             if trace is not None:
                 trace.append(x)
+        if bounds is not None and problem.bound is not None:
+            bounds.append(problem.bound)
         return x
 
     @torch.no_grad()
@@ -367,6 +373,7 @@ class _Relaxation:
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
         self._follower: PlaneFollower | None = None  # the local requeries' recorded launch (made at the first)
+        self.bound: DistanceBound | None = None  # the samples' distances at the last full query
         extra = extra_blocks(cloth)  # independent of x: formed once per solve, in the local terms' float64
         self._extra = None if extra is None else extra.to(torch.float64)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
@@ -376,7 +383,7 @@ class _Relaxation:
         other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band,
                             min_move=self.min_move)
         other.planes, other._faces, other._found_at = self.planes, self._faces, self._found_at
-        other._follower = self._follower
+        other._follower, other.bound = self._follower, self.bound
         if self.planes is not None:
             other._potential.hold(self.planes)
         return other
@@ -399,8 +406,10 @@ class _Relaxation:
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
                 self._faces = q.face
+                samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
+                self.bound = DistanceBound.of(samples, q.signed_distance)
                 if self.min_move > 0:
-                    self._found_at = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
+                    self._found_at = samples
                 change = None
             else:
                 found_at = self.planes[0] if self._found_at is None else self._found_at  # unread with min_move 0

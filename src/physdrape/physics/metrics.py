@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.garment import GarmentBatch
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.bending import bend_energy
@@ -22,11 +23,20 @@ CLOSE_DISTANCE = 1e-3
 CONTACT_DISTANCE = 3e-3
 
 
-def faces_inside(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor) -> Tensor:
+def faces_inside(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *,
+                 bound: DistanceBound | None = None) -> Tensor:
     """Whether each face's centroid is inside its body, (ΣF,) bool: decided exactly by the
-    body-surface query (winding number; no margin). x [m] (ΣV, 3); body_index (ΣV,)."""
+    body-surface query (winding number; no margin). x [m] (ΣV, 3); body_index (ΣV,). `bound`: a
+    `DistanceBound` of the vertices and then the centroids; the centroids it proves outside are
+    not queried."""
     faces = garments.faces
-    return bodies.query(x[faces].mean(dim=1), body_index=body_index[faces[:, 0]]).inside
+    centroids, owner = x[faces].mean(dim=1), body_index[faces[:, 0]]
+    if bound is None:
+        return bodies.query(centroids, body_index=owner).inside
+    rows = bound.part(x.shape[0], x.shape[0] + faces.shape[0]).rows_below(centroids, 0.0)
+    inside = torch.zeros(faces.shape[0], dtype=torch.bool, device=x.device)
+    inside[rows] = bodies.query(centroids[rows], body_index=owner[rows]).inside
+    return inside
 
 
 def b2g_percent(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *,
@@ -68,26 +78,35 @@ class DrapeMetrics:
 
 @torch.no_grad()
 def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_index: Tensor, *, cloth: Cloth | None = None,
-                  inside_faces: Tensor | None = None) -> DrapeMetrics:
+                  inside_faces: Tensor | None = None, bound: DistanceBound | None = None) -> DrapeMetrics:
     """All metrics of drapes x (ΣV, 3) [m]. `cloth` gives the materials actually draped (for the
     residual force); energies always use the default material. `inside_faces`: `faces_inside` of
-    this x, when the caller has it (else it is queried)."""
+    this x, when the caller has it (else it is queried). `bound`: a `DistanceBound` of the
+    vertices and then the centroids; only what it leaves within `CONTACT_DISTANCE` of the body
+    (vertices) or inside it (centroids) is queried."""
     reference = Cloth.build(garments.to(x.dtype), DEFAULT_MATERIAL)
     cloth = reference if cloth is None else cloth
     count = garments.num_garments
-    query = bodies.query(x, body_index=body_index)
-    verts_per_garment = x.new_zeros(count).index_add_(0, garments.vert_garment, torch.ones_like(query.signed_distance))
-    close = x.new_zeros(count).index_add_(0, garments.vert_garment, (query.signed_distance < CLOSE_DISTANCE).to(x.dtype))
+    if bound is None:
+        distance = bodies.query(x, body_index=body_index).signed_distance
+    else:  # the vertices proved farther than CONTACT_DISTANCE count as that far: neither close nor in contact
+        rows = bound.part(0, x.shape[0]).rows_below(x, CONTACT_DISTANCE)
+        distance = x.new_full((x.shape[0],), 2.0 * CONTACT_DISTANCE)
+        distance[rows] = bodies.query(x[rows], body_index=body_index[rows]).signed_distance
+    verts_per_garment = x.new_zeros(count).index_add_(0, garments.vert_garment, torch.ones_like(distance))
+    close = x.new_zeros(count).index_add_(0, garments.vert_garment, (distance < CLOSE_DISTANCE).to(x.dtype))
     force = internal_forces(x, cloth).norm(dim=-1)
     weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
-    free = (query.signed_distance > CONTACT_DISTANCE).to(x.dtype)
+    free = (distance > CONTACT_DISTANCE).to(x.dtype)
     free_count = x.new_zeros(count).index_add_(0, garments.vert_garment, free).clamp_min(1.0)
     residual = x.new_zeros(count).index_add_(0, garments.vert_garment, force * free) / free_count
     relative = x.new_zeros(count).index_add_(0, garments.vert_garment, force / weight * free) / free_count
     return DrapeMetrics(
         strain=reference.sum_per_garment(strain_energy(x, reference), reference.face_garment),
         bend=reference.sum_per_garment(bend_energy(x, reference), reference.hinge_garment),
-        b2g_percent=b2g_percent(x, garments, bodies, body_index, inside=inside_faces),
+        b2g_percent=b2g_percent(x, garments, bodies, body_index,
+                                inside=faces_inside(x, garments, bodies, body_index, bound=bound)
+                                if inside_faces is None else inside_faces),
         close_percent=100.0 * close / verts_per_garment,
         residual_force=residual,
         residual_relative=relative,

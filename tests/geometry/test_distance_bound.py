@@ -1,0 +1,51 @@
+"""Distance bounds from an earlier query: never above the true signed distance after a move, so
+the points they leave out of a query are truly that far from the body."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from physdrape.geometry.distance_bound import SLACK, DistanceBound
+from physdrape.geometry.proximity import BodySurface
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    return BodySurface(torch.tensor(np.asarray(mesh.vertices)), torch.tensor(np.asarray(mesh.faces)))
+
+
+def test_a_bound_never_exceeds_the_signed_distance_after_a_move(sphere):
+    """Points inside and outside a sphere, moved up to 3 cm after the query: each bound is at
+    most the point's signed distance, and the rows below a threshold hold every point that is
+    below it (the others are proved farther)."""
+    gen = torch.Generator().manual_seed(0)
+    direction = torch.nn.functional.normalize(torch.randn(400, 3, generator=gen, dtype=torch.float64), dim=-1)
+    radius = 0.07 + 0.08 * torch.rand(400, 1, generator=gen, dtype=torch.float64)
+    points = direction * radius
+    bound = DistanceBound.of(points, sphere.query(points).signed_distance)
+    moved = points + 0.03 * torch.rand(400, 1, generator=gen, dtype=torch.float64) * torch.nn.functional.normalize(
+        torch.randn(400, 3, generator=gen, dtype=torch.float64), dim=-1)
+    truth = sphere.query(moved).signed_distance
+    lower = bound.lower(moved)
+    assert bool((lower <= truth + 1e-12).all())
+    assert float((truth - lower).max()) > 0.01  # a bound, not the distance
+    for threshold in (0.0, 2e-3, 1e-2):
+        rows = bound.rows_below(moved, threshold)
+        below = torch.nonzero(truth < threshold)[:, 0]
+        assert set(below.tolist()) <= set(rows.tolist()) and 0 < len(rows) < 400
+        assert bool((lower[rows] < threshold + SLACK).all())
+
+
+def test_update_and_part_replace_and_cut_rows():
+    points, distance = torch.zeros(5, 3, dtype=torch.float64), torch.arange(5, dtype=torch.float64)
+    bound = DistanceBound.of(points, distance)
+    newer = bound.updated(torch.tensor([1, 3]), torch.ones(2, 3), torch.tensor([-1.0, -3.0]))
+    torch.testing.assert_close(newer.distance, torch.tensor([0.0, -1.0, 2.0, -3.0, 4.0], dtype=torch.float64))
+    torch.testing.assert_close(newer.at[[1, 3]], torch.ones(2, 3, dtype=torch.float64))
+    assert torch.equal(bound.distance, distance)  # the original kept
+    part = newer.part(1, 3)
+    torch.testing.assert_close(part.distance, torch.tensor([-1.0, 2.0], dtype=torch.float64))
+    with pytest.raises(ValueError, match="shape"):
+        part.lower(torch.zeros(3, 3))
