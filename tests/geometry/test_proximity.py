@@ -13,7 +13,7 @@ import torch
 import trimesh
 
 from physdrape.geometry.closest_point import closest_point_on_triangle
-from physdrape.geometry.normals import angle_weighted_vertex_normals
+from surface_normals_reference import angle_weighted_vertex_normals
 from physdrape.geometry.proximity import (
     BodySurface,
     SignMethod,

@@ -1,10 +1,10 @@
-"""Normals of triangle meshes (torch, batched, differentiable): face normals, area-weighted
-vertex normals and angle-weighted vertex pseudo-normals.
+"""Normals of triangle meshes (torch, batched, differentiable): face normals and area-weighted
+vertex normals.
 
 Area-weighted vertex normals are the one implementation for garments (`geometry.garment`, the
 model's features) and bodies (`body.model`, Anny/SMPL states). Angle-weighted pseudo-normals
-(Baerentzen & Aanaes 2005) are a different quantity, used by the body-surface queries
-(`geometry.proximity`) for inside tests and for the direction of points on the surface.
+(Baerentzen & Aanaes 2005) are a different quantity, used by the body-surface queries for inside
+tests and for the direction of points on the surface (`geometry.surface_normals`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ __all__ = [
     "vertex_normals",
     "face_normals",
     "triangle_normals",
-    "angle_weighted_vertex_normals",
 ]
 
 
@@ -78,31 +77,3 @@ def triangle_normals(corners: Tensor) -> Tensor:
     length = n.norm(dim=-1, keepdim=True)
     return n / torch.where(length > 0, length, torch.ones_like(length))
 
-
-def angle_weighted_vertex_normals(verts: Tensor, faces: Tensor) -> Tensor:
-    """Angle-weighted unit vertex normals (the vertex pseudo-normal), shape (..., Vb, 3).
-
-    Args:
-        verts: vertex positions [m], shape (..., Vb, 3).
-        faces: triangles, shape (F, 3) int64.
-    """
-    lead, num_verts = verts.shape[:-2], verts.shape[-2]
-    flat = verts.reshape(-1, num_verts, 3)
-    batch = flat.shape[0]
-    # the batch's meshes as one of batch · Vb vertices: sums into rows along dim 0 (index_add's
-    # fast path; along dim −2 of a batched tensor it is several times slower)
-    rows = (faces[None] + num_verts * torch.arange(batch, device=faces.device)[:, None, None]).reshape(-1, 3)
-    points = flat.reshape(-1, 3)
-    corners = [points.index_select(0, rows[:, k]) for k in range(3)]
-    fn = torch.linalg.cross(corners[1] - corners[0], corners[2] - corners[0])
-    length = fn.norm(dim=-1, keepdim=True)
-    fn = fn / torch.where(length > 0, length, torch.ones_like(length))
-    out = torch.zeros_like(points)
-    tiny = torch.finfo(verts.dtype).tiny
-    for k in range(3):
-        e1 = corners[(k + 1) % 3] - corners[k]
-        e2 = corners[(k + 2) % 3] - corners[k]
-        cos = (e1 * e2).sum(-1) / (e1.norm(dim=-1) * e2.norm(dim=-1)).clamp_min(tiny)
-        out.index_add_(0, rows[:, k], fn * torch.acos(cos.clamp(-1.0, 1.0))[:, None])
-    length = out.norm(dim=-1, keepdim=True)
-    return (out / torch.where(length > 0, length, torch.ones_like(length))).reshape(*lead, num_verts, 3)

@@ -67,12 +67,9 @@ from physdrape.geometry.closest_point import (
     walk_to_closest_faces,
 )
 from physdrape.geometry.doubtful_faces import DOUBT_RADIUS_EDGES, doubtful_faces
-from physdrape.geometry.normals import (
-    angle_weighted_vertex_normals,
-    triangle_normals,
-    vertex_face_table,
-)
+from physdrape.geometry.normals import vertex_face_table
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
+from physdrape.geometry.surface_normals import surface_normals
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces, face_rings
 
 __all__ = [
@@ -189,7 +186,7 @@ class BodySurface:
         self.faces = check_faces(faces, verts.shape[1], verts.device)
         self._faces32 = self.faces.to(torch.int32).contiguous()  # what the kernels read
         edge_nbr, border, rings = _body_topology(self.faces.cpu().numpy().tobytes(), self.faces.shape[0])
-        self._edge_nbr = torch.from_numpy(edge_nbr).to(verts.device)
+        self._edge_nbr = torch.from_numpy(edge_nbr).to(device=verts.device, dtype=torch.int32)
         self._border = torch.from_numpy(border).to(verts.device)
         self._rings = torch.from_numpy(rings).to(verts.device)
         self._build(verts)
@@ -316,25 +313,20 @@ class BodySurface:
         self._bvh.forget_recent()
 
     def _vertex_pseudo_normals(self) -> Tensor:
-        """Angle-weighted vertex normals of all bodies, shape (B, Vb, 3); cached until update()."""
+        """Angle-weighted vertex normals of all bodies, shape (B, Vb, 3), in the bodies' dtype;
+        cached until update()."""
         if self._vertex_normals is None:
-            with torch.no_grad():
-                self._vertex_normals = angle_weighted_vertex_normals(self.verts.detach(), self.faces)
+            self._vertex_normals = self._feature_normals()[2].to(self.verts.dtype)
         return self._vertex_normals
 
     def _feature_normals(self) -> tuple[Tensor, Tensor, Tensor]:
         """Unit normals of all bodies' faces (B, Fb, 3), edges (B, Fb, 3, 3) and vertices (B, Vb,
-        3), float64 (what the pseudo-normal kernel reads): face f's edge opposite its corner k at
-        [:, f, k], the normalised sum of the normals of the two faces that share it (the face's own
-        on a hole's border); cached until update()."""
+        3), float64 (what the pseudo-normal kernel reads; `geometry.surface_normals`): face f's
+        edge opposite its corner k at [:, f, k], the normalised sum of the normals of the two
+        faces that share it (the face's own on a hole's border); the vertices' angle-weighted;
+        cached until update()."""
         if self._face_normals is None:
-            with torch.no_grad():
-                faces = triangle_normals(self.verts.detach().double()[:, self.faces])
-                nbr = self._edge_nbr
-                other = torch.where((nbr >= 0)[None, :, :, None], faces[:, nbr.clamp_min(0)], 0.0)
-                edges = faces[:, :, None, :] + other
-                edges = edges / edges.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(edges.dtype).tiny)
-                self._face_normals = (faces, edges, self._vertex_pseudo_normals().double().contiguous())
+            self._face_normals = surface_normals(self.verts, self._faces32, self._edge_nbr)
         return self._face_normals
 
     def _flat_verts64(self) -> Tensor:
