@@ -264,10 +264,11 @@ def test_interpenetrating_parts_inside_follows_winding_number():
 
 
 def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_numbers_of_all():
-    """On a closed surface a probe whose outward ray crosses nothing has winding number 0: the
-    doubtful faces found with that filter are those the winding number of every probe gives
-    (overlapping spheres, and the same with a hole, where every probe gets its winding number)."""
-    from physdrape.geometry.doubtful_faces import PROBE_OFFSET
+    """On a closed surface a probe whose outward ray crosses nothing has winding number 0, and
+    one whose ray first enters the surface head on is outside: the doubtful faces found with that
+    filter are those the winding number of every probe gives (overlapping spheres, and the same
+    with a hole, where every probe gets its winding number)."""
+    from physdrape.geometry.doubtful_faces import ENTERING, PROBE_OFFSET
 
     a_verts, a_faces = icosphere(3, 0.15)
     b_verts, b_faces = icosphere(3, 0.10)
@@ -288,10 +289,31 @@ def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_number
 
     expected, buried, surface, probe, owner, normals = by_winding_numbers_of_all(closed)
     assert buried.sum() > 10  # the vertices of each sphere inside the other
-    hits = surface._bvh.ray_hits(probe, owner, normals.float().contiguous())
-    assert not (buried & ~hits).any() and (~hits).sum() > len(verts) // 2  # the filter skips most, no buried one
+    hits, facing = surface._bvh.ray_hits(probe, owner, normals.float().contiguous())
+    asked = hits & (facing > -ENTERING)
+    assert not (buried & ~asked).any() and (~hits).sum() > len(verts) // 2  # the filter skips most, no buried one
+    assert (hits & ~asked).any()  # rays entering the other sphere: no winding number
     assert torch.equal(surface.doubtful_faces()[0], expected)
     assert torch.equal(BodySurface(verts, holed).doubtful_faces()[0], by_winding_numbers_of_all(holed)[0])
+
+
+def test_probes_whose_rays_enter_another_part_get_no_winding_number():
+    """A small sphere 3 cm above a big one (an arm over the torso): the rays of the big sphere's
+    probes under it enter the small sphere head on and are not asked about; nothing is buried and
+    no face is doubtful, as the winding number of every probe says."""
+    from physdrape.geometry.doubtful_faces import ENTERING, PROBE_OFFSET
+
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.05)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.0, 0.23, 0.0], dtype=torch.float64)])
+    surface = BodySurface(verts, torch.cat([a_faces, b_faces + len(a_verts)]))
+    normals = surface._vertex_pseudo_normals()[0]
+    probe = (verts + PROBE_OFFSET * normals).float().contiguous()
+    owner = torch.zeros(len(verts), dtype=torch.int32)
+    hits, facing = surface._bvh.ray_hits(probe, owner, normals.float().contiguous())
+    assert (hits & (facing < -ENTERING)).sum() > 20 and not (hits & (facing > -ENTERING)).any()
+    assert not surface._search(probe, owner, winding=True)[1].any()
+    assert not surface.doubtful_faces().any()
 
 
 def test_inside_is_the_winding_number_inside_flag_of_query():

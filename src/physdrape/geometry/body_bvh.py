@@ -79,10 +79,15 @@ def _query_kernels():
         points: wp.array(dtype=wp.vec3),
         directions: wp.array(dtype=wp.vec3),
         hit: wp.array(dtype=wp.int32),
+        facing: wp.array(dtype=wp.float32),
     ):
         i = wp.tid()
-        q = wp.mesh_query_ray(mesh_ids[body[i]], points[i], directions[i], 1.0e30)
+        d = directions[i]
+        q = wp.mesh_query_ray(mesh_ids[body[i]], points[i], d, 1.0e30)
         hit[i] = wp.where(q.result, 1, 0)
+        facing[i] = 0.0
+        if q.result:
+            facing[i] = wp.dot(wp.normalize(q.normal), d) / wp.max(wp.length(d), 1.0e-30)
 
     return wp, closest_kernel, closest_winding_kernel, ray_kernel
 
@@ -167,22 +172,26 @@ class BodyBVH:
             self._recent.popitem(last=False)
         return face.clone()
 
-    def ray_hits(self, points32: Tensor, body: Tensor, directions32: Tensor, *, threads: int | None = None) -> Tensor:
+    def ray_hits(self, points32: Tensor, body: Tensor, directions32: Tensor, *,
+                 threads: int | None = None) -> tuple[Tensor, Tensor]:
         """Whether the ray from each point along its direction hits its body's surface, shape (M,)
-        bool; points32, directions32 (M, 3) float32 and body (M,) int32, contiguous, on the bodies'
-        device (split between CPU threads like `closest_faces`)."""
+        bool, and the cosine of the angle between the ray and the outward normal of the first
+        face it hits (M,) float32 (< 0: the ray enters the surface there; 0 where it hits
+        nothing); points32, directions32 (M, 3) float32 and body (M,) int32, contiguous, on the
+        bodies' device (split between CPU threads like `closest_faces`)."""
         wp, _, _, ray_kernel = _query_kernels()
         hit = torch.empty(points32.shape[0], dtype=torch.int32, device=points32.device)
+        facing = torch.empty(points32.shape[0], dtype=torch.float32, device=points32.device)
 
         def launch(lo: int, hi: int) -> None:
             wp.launch(ray_kernel, dim=hi - lo, device=self._wp_device,
                       inputs=[self._mesh_ids, launch_arg(body[lo:hi], wp.int32),
                               launch_arg(points32[lo:hi], wp.vec3),
                               launch_arg(directions32[lo:hi], wp.vec3)],
-                      outputs=[launch_arg(hit[lo:hi], wp.int32)])
+                      outputs=[launch_arg(hit[lo:hi], wp.int32), launch_arg(facing[lo:hi], wp.float32)])
 
         self._run_chunks(launch, points32.shape[0], threads)
-        return hit.bool()
+        return hit.bool(), facing
 
     def _run_chunks(self, launch, n: int, threads: int | None) -> None:
         """launch(lo, hi) over n points: in chunks on parallel CPU threads when there are enough
