@@ -67,7 +67,7 @@ from physdrape.physics.coarse_factor import (
     regularized_cholesky,
 )
 from physdrape.physics.forces import links
-from physdrape.physics.majorant import PairBlocks
+from physdrape.physics.majorant import PairBlocks, pair_product
 from physdrape.threads import one_blas_thread
 
 __all__ = ["CoarseSpace"]
@@ -369,6 +369,7 @@ class CoarseSpace:
         self._gram: list[Tensor] | None = None
         self.blocks: Tensor | None = None  # K at the last `factor`: a 3 × 3 block per vertex pair, float64
         self._pair_blocks: PairBlocks | None = None  # the strain majorant's pair blocks, recorded at the first factor
+        self._ends32: Tensor | None = None  # the pairs' vertices, int32 (what the product kernel reads)
 
     def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
@@ -415,9 +416,9 @@ class CoarseSpace:
         differentiable in v (K is a constant)."""
         if self.blocks is None:
             raise RuntimeError("CoarseSpace.stiffness_product before factor: call factor(x) first")
-        rows, cols = self._s.pair_ends[:, 0], self._s.pair_ends[:, 1]
-        product = (self.blocks @ v.double()[cols].unsqueeze(-1)).squeeze(-1)
-        return torch.zeros(v.shape, dtype=torch.float64, device=v.device).index_add(0, rows, product).to(v.dtype)
+        if self._ends32 is None:
+            self._ends32 = self._s.pair_ends.to(torch.int32).contiguous()
+        return pair_product(self.blocks, self._ends32, v.double()).to(v.dtype)
 
     def fit(self, field: Tensor) -> Tensor:
         """The coarse space's least-squares fit of a per-vertex field (V, 3): P c with c minimising

@@ -30,8 +30,9 @@ kernels (`physics.element_kernels`, `physics.contact_kernels`).
 The kernels compute in float64 whatever the garment's dtype (a few thousand elements; the
 coarse product is formed in float64 anyway) and run where the tensors live, on the CPU or on
 CUDA, one thread per face, hinge or vertex, summing into the vertices and pairs atomically.
-Nothing here is differentiated: the solver's preconditioner is a constant of each step, and its
-training differentiates the forces of the element kernels.
+Nothing here is differentiated but the product of the pair blocks with a field (`pair_product`,
+linear in the field: the solver's inner iterations): the solver's preconditioner is a constant of
+each step, and its training differentiates the forces of the element kernels.
 """
 
 from __future__ import annotations
@@ -46,8 +47,8 @@ from physdrape.physics.cloth import Cloth
 from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["LocalTerms", "PairBlocks", "compliance", "pair_blocks", "record_compliance", "record_local_terms", "vertex_blocks",
-           "vertex_compliance"]
+__all__ = ["LocalTerms", "PairBlocks", "compliance", "pair_blocks", "pair_product", "record_compliance", "record_local_terms",
+           "vertex_blocks", "vertex_compliance"]
 
 
 @defined_once
@@ -216,8 +217,20 @@ def _kernels():
         floor = rel * wp.max(wp.trace(k), tiny)
         out[v] = wp.inverse(k + floor * wp.identity(n=3, dtype=wp.float64))
 
+    @wp.kernel(enable_backward=False)
+    def pair_product_kernel(blocks: wp.array(dtype=wp.mat33d), ends: wp.array2d(dtype=wp.int32),
+                            v: wp.array(dtype=wp.vec3d), transpose: int, out: wp.array(dtype=wp.vec3d)):
+        """out[a] += B_p v[b] for each pair p = (a, b) (transpose: out[b] += B_pᵀ v[a])."""
+        p = wp.tid()
+        a = ends[p, 0]
+        b = ends[p, 1]
+        if transpose == 0:
+            wp.atomic_add(out, a, blocks[p] * v[b])
+        else:
+            wp.atomic_add(out, b, wp.transpose(blocks[p]) * v[a])
+
     return {"wp": wp, "local_terms": local_terms_kernel, "strain_pair": strain_pair_kernel,
-            "compliance": compliance_kernel}
+            "compliance": compliance_kernel, "pair_product": pair_product_kernel}
 
 
 @dataclass(frozen=True)
@@ -342,6 +355,38 @@ def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int)
     """
     blocks = PairBlocks(cloth, pair_of_corner, num_pairs)
     return blocks(x)
+
+
+def pair_product(blocks: Tensor, ends: Tensor, v: Tensor) -> Tensor:
+    """K v of the matrix assembled from pair blocks (P, 3, 3) float64 [N/m], block p at rows of
+    vertex ends[p, 0] and columns of vertex ends[p, 1] (ends (P, 2) int32), for a per-vertex field
+    v (V, 3) float64: one launch, each pair adding its block's product into its row vertex.
+    Differentiable in v (the backward applies Kᵀ); the blocks are constants."""
+    return _PairProduct.apply(v, blocks, ends)
+
+
+class _PairProduct(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, v: Tensor, blocks: Tensor, ends: Tensor) -> Tensor:
+        ctx.save_for_backward(blocks, ends)
+        return _pair_product(blocks, ends, v, transpose=False)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        blocks, ends = ctx.saved_tensors
+        return _pair_product(blocks, ends, grad, transpose=True), None, None
+
+
+def _pair_product(blocks: Tensor, ends: Tensor, v: Tensor, *, transpose: bool) -> Tensor:
+    wp = _kernels()["wp"]
+    v = v.detach().contiguous()
+    out = torch.zeros_like(v)
+    if blocks.shape[0]:
+        with torch_stream(v.device):
+            wp.launch(_kernels()["pair_product"], dim=blocks.shape[0], device=wp.device_from_torch(v.device),
+                      inputs=[launch_arg(blocks.detach().contiguous(), wp.mat33d), launch_arg(ends, wp.int32),
+                              launch_arg(v, wp.vec3d), int(transpose)], outputs=[launch_arg(out, wp.vec3d)])
+    return out
 
 
 class PairBlocks:
