@@ -23,6 +23,7 @@ from physdrape.physics.contact import (
 )
 from physdrape.physics.forces import extra_blocks, internal_forces, tie_forces
 from physdrape.physics.potential import GarmentPotential
+from physdrape.threads import one_blas_thread
 
 
 class SolverKind(str, enum.Enum):
@@ -204,6 +205,7 @@ class StretchingSolver(nn.Module):
     def _clip(self, move: Tensor) -> Tensor:
         return clip_moves(move, self.max_step)
 
+    @one_blas_thread()  # the coarse space's band factorisations and solves: limited once per solve, not per call
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
                    bodies: BodySurface | None, body_index: Tensor | None, bounds: list | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
