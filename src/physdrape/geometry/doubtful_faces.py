@@ -28,7 +28,10 @@ def doubtful_faces(verts: Tensor, faces: Tensor, vertex_normals: Tensor, border:
 
     A body vertex is *buried* when a point just outside it (`PROBE_OFFSET` along its normal) has
     winding number > 0.5: another part of the body covers it (posed limbs that interpenetrate).
-    Vertices on the border of a hole count as buried too. A face is doubtful when one of its
+    On a closed surface the winding number is taken only where the probe's outward ray cannot
+    decide: a probe whose ray crosses nothing, or first enters the surface head on (`ENTERING`),
+    is outside (exact unless one part holds another's surface inside it). Vertices on the border
+    of a hole count as buried too (and there every probe gets the winding number). A face is doubtful when one of its
     vertices lies within `DOUBT_RADIUS_EDGES` of the body's longest edge of a buried vertex. Away
     from doubtful faces the surface is one closed, consistently oriented sheet, on which the
     pseudo-normal of the closest feature gives the exact sign.
