@@ -22,6 +22,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.warp_runtime import defined_once, torch_stream, warp
 
@@ -68,7 +69,8 @@ def limit_edge_stretch(
         requery_every: sweeps between closest-point queries (the planes are held in between).
         reach: at the queries after the first, only the vertices that may have come within this
             distance [m] of the body since their planes were found are queried again (a vertex
-            found at distance d that has moved m since is at least d − m away); the others keep
+            found at distance d that has moved m since is at least d − m away,
+            `geometry.distance_bound`); the others keep
             their planes, which push only at the floor, at most `margin` from the body: a loose
             garment's far parts are searched once.
         momentum: heavy-ball momentum of the sweeps, in [0, 1) (0 = plain Jacobi); the velocity
@@ -140,19 +142,19 @@ def limit_edge_stretch(
                         rows = None
                         query = body.query(flat.reshape(shape).to(body.verts.dtype))
                     else:  # the vertices of live meshes that may have come within reach since their planes were found
-                        near = found[:, 3] - (flat - found[:, :3]).norm(dim=-1) < reach
-                        rows = torch.nonzero(near & (active[copy_of_vertex] != 0))[:, 0]
+                        rows = found.rows_below(flat, reach)
+                        rows = rows[active[copy_of_vertex[rows]] != 0]
                         query = body.query(flat[rows].to(body.verts.dtype), body_index=copy_of_vertex[rows])
                 if rows is None:
                     planes[0] = query.closest.reshape(-1, 3)
                     planes[1] = query.normal.reshape(-1, 3)
                     # never deeper than at the start, never into the margin
                     planes[2, :, 0] = query.signed_distance.reshape(-1).to(torch.float64).clamp_max(margin)
-                    found = torch.cat([flat, query.signed_distance.reshape(-1, 1).to(torch.float64)], 1)
+                    found = DistanceBound.of(flat, query.signed_distance.reshape(-1))
                 else:
                     planes[0, rows] = query.closest.to(torch.float64)
                     planes[1, rows] = query.normal.to(torch.float64)
-                    found[rows] = torch.cat([flat[rows], query.signed_distance[:, None].to(torch.float64)], 1)
+                    found = found.updated(rows, flat[rows], query.signed_distance)
                 held = True
             stats.zero_()
             edge.launch()
