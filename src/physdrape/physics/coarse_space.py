@@ -26,12 +26,11 @@ Numerics: patches and P depend on a garment's topology only and are cached. K (i
 dtype) is gathered into 3×3 blocks of the vertex pairs that share a face or a link. Pᵀ K P is
 linear in those blocks: its 3×3 block (I, J) is Σ P[i, I] P[j, J] K_ij over the pairs (i, j), so
 a garment's topology and links fix a sparse Galerkin operator G (coarse blocks × pairs), built
-once and cached, and each `factor` forms Pᵀ K P as the sparse product G · K in float64 (on CUDA
-for all the batch's garments of that topology at once, on the CPU garment by garment, whose pair
-blocks stay in the core's caches), scattered straight into each garment's coarse matrix,
-which is then factorised by Cholesky (`physics.coarse_factor`). A patch couples only to the
-patches near it, and the patches are numbered (reverse Cuthill–McKee) so that those couplings lie
-in a band about the diagonal: on the CPU the matrix is assembled and factorised in band storage
+once and cached, and each `factor` forms Pᵀ K P as the product G · K in float64, one launch for
+all the batch's garments of that topology, written straight into each garment's coarse matrix
+(`physics.galerkin`), which is then factorised by Cholesky (`physics.coarse_factor`). A patch
+couples only to the patches near it, and the patches are numbered (reverse Cuthill–McKee) so
+that those couplings lie in a band about the diagonal: on the CPU the matrix is assembled and factorised in band storage
 (LAPACK's pbtrf and pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense
 (cuSOLVER), where a few hundred unknowns cost little either way and the garments of one topology
 (a batch of one garment on many bodies) are factorised and solved together, in one batched call
@@ -67,6 +66,7 @@ from physdrape.physics.coarse_factor import (
     regularized_cholesky,
 )
 from physdrape.physics.forces import links
+from physdrape.physics.galerkin import GalerkinProduct
 from physdrape.physics.majorant import PairBlocks, pair_product
 from physdrape.threads import one_blas_thread
 
@@ -216,15 +216,12 @@ def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
 
 @dataclass(frozen=True)
 class _Group:
-    """The garments of a batch that share one topology, formed together: G (sparse CSR), the
-    batch's pair rows of each garment (garments, pairs), the buffer index of each entry of
-    each garment's coarse blocks (garments, coarse blocks · 9), each garment's coarse dofs
-    (garments, n), and in dense storage the buffer index of each garment's matrix (garments, n²),
-    factorised and solved together."""
+    """The garments of a batch that share one topology, formed together: the Galerkin product
+    that writes their coarse blocks into their matrices, each garment's coarse dofs (garments, n),
+    and in dense storage the buffer index of each garment's matrix (garments, n²), factorised and
+    solved together."""
 
-    operator: Tensor
-    pair_rows: Tensor
-    destination: Tensor
+    galerkin: GalerkinProduct
     coarse_dofs: Tensor
     matrix_entries: Tensor | None
 
@@ -280,8 +277,8 @@ class _BatchStructure:
             pair_starts.append(p0)  # the batch numbers its pairs garment after garment
             c0, offset, p0 = c0 + patches, offset + (3 * patches) ** 2, p0 + garment.num_pairs
             v0, f0 = v0 + nv, f0 + nf
-        # The buffer holds each garment's band (garment after garment; the upper triangle's entries
-        # go to its last slot, which nothing reads) or its dense matrix.
+        # The buffer holds each garment's band (garment after garment; the upper triangle is not
+        # stored) or its dense matrix.
         widths = [g.bandwidth for g in garments]
         if banded:
             sizes = [(b - a) * (w + 1) for (a, b), w in zip(coarse_ranges, widths)]
@@ -293,21 +290,19 @@ class _BatchStructure:
         groups = []
         for indices in members.values():
             garment = garments[indices[0]]
-            rows = np.stack([np.arange(pair_starts[g], pair_starts[g] + garment.num_pairs) for g in indices])
             local = garment.destination
             if banded:
                 n = 3 * garment.prolong.shape[1]
                 r, c = local // n, local % n
                 local = np.where(r >= c, c * (garment.bandwidth + 1) + (r - c), -1)
             destination = np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + local
-            if banded:
-                destination[:, local < 0] = offset
+            destination[:, local < 0] = -1
             n = 3 * garment.prolong.shape[1]
             dofs = np.array([coarse_ranges[g][0] for g in indices], dtype=np.int64)[:, None] + np.arange(n)
             entries = None if banded else torch.from_numpy(
                 np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + np.arange(n * n)).to(device)
-            groups.append(_Group(_sparse_csr(garment.operator, device), torch.from_numpy(rows).to(device),
-                                 torch.from_numpy(destination).to(device), torch.from_numpy(dofs).to(device), entries))
+            groups.append(_Group(GalerkinProduct(garment.operator, np.array([pair_starts[g] for g in indices]), destination, device),
+                                 torch.from_numpy(dofs).to(device), entries))
         prolong = sp.block_diag([g.prolong for g in garments], format="csr")  # (V, patches)
         return _BatchStructure(
             num_patches=prolong.shape[1],
@@ -387,20 +382,10 @@ class CoarseSpace:
             if self._links is not None:
                 coupling = -self._links.blocks.to(blocks.dtype)
                 blocks.index_add_(0, s.pair_of_link[:, 0], coupling).index_add_(0, s.pair_of_link[:, 1], coupling)
-            self.blocks, flat = blocks, blocks.reshape(-1, 9)
-            buffer = blocks.new_zeros(s.buffer_size + 1)  # the last slot: the bands' upper triangles
-            for group in s.groups:  # Pᵀ K P block by block: G times the pair blocks of the group's garments
-                total, pairs = group.pair_rows.shape
-                # on the CPU one garment per product: a garment's pair blocks stay in the core's
-                # caches while G gathers them (a batch's at once run a third slower per garment)
-                step = total if flat.is_cuda else 1
-                for lo in range(0, total, step):
-                    rows = group.pair_rows[lo:lo + step]
-                    count = rows.shape[0]
-                    stacked = flat[rows.reshape(-1)].reshape(count, pairs, 9).permute(1, 0, 2)
-                    coarse = group.operator @ stacked.reshape(pairs, 9 * count)
-                    buffer[group.destination[lo:lo + step]] = coarse.reshape(-1, count, 9).permute(1, 0, 2).reshape(
-                        count, -1)
+            self.blocks = blocks
+            buffer = blocks.new_zeros(s.buffer_size)
+            for group in s.groups:  # Pᵀ K P: G times the pair blocks of the group's garments
+                group.galerkin(blocks, buffer)
         if s.banded:
             with one_blas_thread():
                 self._factors = [
