@@ -266,9 +266,10 @@ def test_interpenetrating_parts_inside_follows_winding_number():
 def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_numbers_of_all():
     """On a closed surface a probe whose outward ray crosses nothing has winding number 0, and
     one whose ray first enters the surface head on is outside: the doubtful faces found with that
-    filter are those the winding number of every probe gives (overlapping spheres, and the same
-    with a hole, where every probe gets its winding number)."""
-    from physdrape.geometry.doubtful_faces import ENTERING, PROBE_OFFSET
+    filter are those the winding number of every probe gives, each face within DOUBT_REACH times
+    its and the buried vertex's edges of one (overlapping spheres, and the same with a hole, where
+    every probe gets its winding number)."""
+    from physdrape.geometry.doubtful_faces import DOUBT_REACH, ENTERING, PROBE_OFFSET
 
     a_verts, a_faces = icosphere(3, 0.15)
     b_verts, b_faces = icosphere(3, 0.10)
@@ -283,8 +284,15 @@ def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_number
         owner = torch.zeros(len(verts), dtype=torch.int32)
         buried = surface._search(probe, owner, winding=True)[1]
         buried[surface._border] = True
-        radius = 3.0 * (verts[faces] - verts[faces.roll(1, dims=1)]).norm(dim=-1).max()
-        near = torch.cdist(verts, verts[buried]).amin(dim=1) <= radius
+        reach = torch.zeros(len(verts), dtype=verts.dtype)  # each vertex's longest edge among its faces
+        for face in faces.tolist():
+            for a, b in ((0, 1), (1, 2), (2, 0)):
+                length = float((verts[face[a]] - verts[face[b]]).norm())
+                for corner in face:
+                    reach[corner] = max(float(reach[corner]), length)
+        near = torch.zeros(len(verts), dtype=torch.bool)
+        for v in torch.nonzero(buried)[:, 0].tolist():
+            near |= (verts - verts[v]).norm(dim=-1) <= DOUBT_REACH * (reach + reach[v])
         return near[faces].any(dim=-1), buried, surface, probe, owner, normals
 
     expected, buried, surface, probe, owner, normals = by_winding_numbers_of_all(closed)

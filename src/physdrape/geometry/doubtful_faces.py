@@ -8,10 +8,13 @@ from torch import Tensor
 
 from physdrape.geometry.body_bvh import BodyBVH
 
-#: How far from a buried vertex (or a hole) the pseudo-normal sign is in doubt, in multiples of
-#: the body's longest edge: a face that another part of the body crosses has a vertex of that part
-#: inside the body within about two edge lengths of its own vertices.
-DOUBT_RADIUS_EDGES = 3.0
+#: How far from a buried vertex v (or a hole) the pseudo-normal sign is in doubt at a vertex u, in
+#: multiples of e_u + e_v, each vertex's e its longest edge among the faces around it: a face F
+#: that a face G of another part of the body crosses, at a point c, has G's vertex v beyond F
+#: buried, and every vertex u of F, or of a face sharing a vertex with F, lies within e_F of c,
+#: with v within e_G of c, so |u − v| ≤ e_u + e_v; twice that for a margin (a crossing face's
+#: first vertex past F may lie too close to F's surface for its probe to be inside).
+DOUBT_REACH = 2.0
 #: A body vertex is buried when the point this far [m] out along its normal is inside the body.
 PROBE_OFFSET = 1e-4
 #: A probe's outward ray enters the surface head on where the cosine between the ray and the
@@ -31,10 +34,11 @@ def doubtful_faces(verts: Tensor, faces: Tensor, vertex_normals: Tensor, border:
     On a closed surface the winding number is taken only where the probe's outward ray cannot
     decide: a probe whose ray crosses nothing, or first enters the surface head on (`ENTERING`),
     is outside (exact unless one part holds another's surface inside it). Vertices on the border
-    of a hole count as buried too (and there every probe gets the winding number). A face is doubtful when one of its
-    vertices lies within `DOUBT_RADIUS_EDGES` of the body's longest edge of a buried vertex. Away
-    from doubtful faces the surface is one closed, consistently oriented sheet, on which the
-    pseudo-normal of the closest feature gives the exact sign.
+    of a hole count as buried too (and there every probe gets the winding number). A face is
+    doubtful when one of its vertices u lies within `DOUBT_REACH` · (e_u + e_v) of a buried vertex
+    v, e the longest edge of the faces around a vertex (the edges where the body crosses itself,
+    not the body's longest). Away from doubtful faces the surface is one closed, consistently
+    oriented sheet, on which the pseudo-normal of the closest feature gives the exact sign.
     """
     num_bodies, num_verts = verts.shape[:2]
     normals = vertex_normals.reshape(-1, 3)
@@ -64,11 +68,14 @@ def doubtful_faces(verts: Tensor, faces: Tensor, vertex_normals: Tensor, border:
             buried[crossed] = winding_inside(crossed)
     buried = buried.reshape(num_bodies, num_verts)
     buried[:, border] = True
-    edges = verts[:, faces] - verts[:, faces.roll(1, dims=1)]  # (B, Fb, 3, 3)
-    radius = DOUBT_RADIUS_EDGES * edges.norm(dim=-1).amax(dim=(1, 2))  # (B,)
+    longest = (verts[:, faces] - verts[:, faces.roll(1, dims=1)]).norm(dim=-1).amax(dim=2)  # (B, Fb)
+    reach = verts.new_zeros(num_bodies, num_verts).scatter_reduce(  # e of each vertex (B, Vb)
+        1, faces.reshape(1, -1).expand(num_bodies, -1), longest.repeat_interleave(3, dim=1), "amax")
     near = torch.zeros(num_bodies, num_verts, dtype=torch.bool, device=verts.device)
     for b in range(num_bodies):
-        centres = verts[b, buried[b]]
+        centres = torch.nonzero(buried[b])[:, 0]
         for start in range(0, centres.shape[0], 1024):  # bounded memory: (Vb, 1024) distances
-            near[b] |= torch.cdist(verts[b], centres[start:start + 1024]).amin(dim=1) <= radius[b]
+            some = centres[start:start + 1024]
+            within = torch.cdist(verts[b], verts[b, some]) <= DOUBT_REACH * (reach[b][:, None] + reach[b, some][None, :])
+            near[b] |= within.any(dim=1)
     return near[:, faces].any(dim=-1)

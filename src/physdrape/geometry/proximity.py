@@ -66,14 +66,14 @@ from physdrape.geometry.closest_point import (
     closest_surface_points,
     walk_to_closest_faces,
 )
-from physdrape.geometry.doubtful_faces import DOUBT_RADIUS_EDGES, doubtful_faces
+from physdrape.geometry.doubtful_faces import DOUBT_REACH, doubtful_faces
 from physdrape.geometry.normals import vertex_face_table
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
 from physdrape.geometry.surface_normals import surface_normals
 from physdrape.geometry.topology import boundary_edges, edge_neighbour_faces, face_rings
 
 __all__ = [
-    "DOUBT_RADIUS_EDGES",
+    "DOUBT_REACH",
     "BodySurface",
     "SignMethod",
     "SurfaceQuery",
