@@ -1,5 +1,6 @@
 """Distance bounds from an earlier query: never above the true signed distance after a move, so
-the points they leave out of a query are truly that far from the body."""
+the points they leave out of a query are truly that far from the body, and the sides they
+certify are the points' true sides."""
 
 import numpy as np
 import pytest
@@ -38,6 +39,24 @@ def test_a_bound_never_exceeds_the_signed_distance_after_a_move(sphere):
         assert bool((lower[rows] < threshold + SLACK).all())
 
 
+def test_a_certified_side_is_the_true_side_and_uncertain_points_are_the_ones_that_may_have_crossed(sphere):
+    gen = torch.Generator().manual_seed(1)
+    direction = torch.nn.functional.normalize(torch.randn(600, 3, generator=gen, dtype=torch.float64), dim=-1)
+    points = direction * (0.08 + 0.04 * torch.rand(600, 1, generator=gen, dtype=torch.float64))
+    before = sphere.query(points).signed_distance
+    moved = points + 0.02 * torch.rand(600, 1, generator=gen, dtype=torch.float64) * torch.nn.functional.normalize(
+        torch.randn(600, 3, generator=gen, dtype=torch.float64), dim=-1)
+    truth = sphere.query(moved).signed_distance
+    side = DistanceBound.of(points, before).sign(moved)
+    known = side != 0
+    assert torch.equal(side[known] > 0, truth[known] > 0)  # never a wrong side
+    crossed = (truth > 0) != (before > 0)
+    assert crossed.any() and not (known & crossed).any()  # the points that crossed are never certified
+    assert 0.3 < float(known.double().mean()) < 0.95  # most certified, not all
+    moved_less = before.abs() - (moved - points).norm(dim=-1)
+    assert torch.equal(known, moved_less > SLACK)
+
+
 def test_update_and_part_replace_and_cut_rows():
     points, distance = torch.zeros(5, 3, dtype=torch.float64), torch.arange(5, dtype=torch.float64)
     bound = DistanceBound.of(points, distance)
@@ -47,5 +66,6 @@ def test_update_and_part_replace_and_cut_rows():
     assert torch.equal(bound.distance, distance)  # the original kept
     part = newer.part(1, 3)
     torch.testing.assert_close(part.distance, torch.tensor([-1.0, 2.0], dtype=torch.float64))
+    torch.testing.assert_close(newer.select(torch.tensor([3, 0])).distance, torch.tensor([-3.0, 0.0], dtype=torch.float64))
     with pytest.raises(ValueError, match="shape"):
         part.lower(torch.zeros(3, 3))

@@ -335,6 +335,39 @@ def test_inside_is_the_winding_number_inside_flag_of_query():
         BodySurface(verts, faces, sign_method=SignMethod.PSEUDO_NORMAL).inside(x)
 
 
+def test_a_bound_decides_the_side_of_points_in_doubt_that_cannot_have_crossed(monkeypatch):
+    """Overlapping spheres (points near the overlap are in doubt): queried again after a small
+    move with the first query's bound, the points in doubt that moved less than their distance
+    get no winding number, and every field is the one the query without the bound gives."""
+    from physdrape.geometry.body_bvh import BodyBVH
+    from physdrape.geometry.distance_bound import DistanceBound
+
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.10)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
+    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    x = sample_points(verts, faces, 1500, 500, seed=8, offset=0.02)
+    surface = BodySurface(verts, faces)
+    surface.doubtful_faces()
+    bound = DistanceBound.of(x, surface.query(x).signed_distance)
+    moved = x + 1e-3 * torch.nn.functional.normalize(torch.randn(x.shape, generator=torch.Generator().manual_seed(2),
+                                                                 dtype=torch.float64), dim=-1)
+    asked = []
+    search = BodyBVH.closest_faces
+
+    def counting(self, points, body, **kwargs):
+        if kwargs.get("winding"):
+            asked.append(len(points))
+        return search(self, points, body, **kwargs)
+
+    monkeypatch.setattr(BodyBVH, "closest_faces", counting)
+    plain = surface.query(moved)
+    with_bound = surface.query(moved, bound=bound)
+    assert len(asked) == 2 and 0 < asked[1] < asked[0] // 4  # most points in doubt are certified
+    for field in ("closest", "normal", "signed_distance", "face", "inside"):
+        assert torch.equal(getattr(plain, field), getattr(with_bound, field)), field
+
+
 def test_a_surface_told_of_its_workload_finds_its_doubtful_faces_first():
     verts, faces = icosphere(3, 0.15)
     told_little, told_much = BodySurface(verts, faces), BodySurface(verts, faces)

@@ -9,11 +9,14 @@ import pytest
 import torch
 import trimesh
 
+from physdrape.geometry.body_bvh import BodyBVH
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import open_cylinder
 from physdrape.geometry.proximity import BodySurface, SignMethod
 from physdrape.physics import Cloth
 from physdrape.physics.contact import (
+    PlaneFollower,
     contact_energy,
     contact_hessian_blocks,
     contact_samples,
@@ -223,7 +226,7 @@ def _overlapping_spheres() -> BodySurface:
 
 
 @pytest.mark.parametrize("min_move", [0.0, 1.5e-3])
-def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_finds(min_move):
+def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_finds(min_move, monkeypatch):
     """`follow_planes` gives the samples within the band of their held planes (and moved farther
     than min_move since found_at) the closest point, normal and face of `BodySurface.query` walking
     from their held faces, the winding number's sign included where it is in doubt; the others
@@ -261,3 +264,23 @@ def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_find
     pseudo = BodySurface(body.verts, faces, sign_method=SignMethod.PSEUDO_NORMAL)
     wrong = pseudo.query(samples[rows], near=held.face[rows])
     assert ((wrong.normal * want.normal).sum(-1) < 0).sum() > 10
+    # with the held query's bound, the samples in doubt that cannot have crossed the surface keep
+    # their side without a winding number: the same planes from fewer winding numbers
+    asked = []
+    search = BodyBVH.closest_faces
+
+    def counting(self, points, body_index, **kwargs):
+        if kwargs.get("winding"):
+            asked.append(len(points))
+        return search(self, points, body_index, **kwargs)
+
+    monkeypatch.setattr(BodyBVH, "closest_faces", counting)
+    follower = PlaneFollower(faces, x.shape[0], body, None, band=band, min_move=min_move, stiffness=K_C, margin=EPS,
+                             device=x.device)
+    again = follower(x, held.closest, held.normal, held.face, contact_samples(x0, faces))
+    bounded = follower(x, held.closest, held.normal, held.face, contact_samples(x0, faces),
+                       bound=DistanceBound.of(contact_samples(x0, faces), held.signed_distance))
+    for field in ("closest", "normal", "face", "found_at", "change"):
+        assert torch.equal(getattr(again, field), getattr(out, field)), field
+        assert torch.equal(getattr(bounded, field), getattr(out, field)), field
+    assert len(asked) == 2 and asked[1] < asked[0]

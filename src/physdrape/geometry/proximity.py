@@ -66,6 +66,7 @@ from physdrape.geometry.closest_point import (
     closest_surface_points,
     walk_to_closest_faces,
 )
+from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.doubtful_faces import DOUBT_REACH, doubtful_faces
 from physdrape.geometry.normals import vertex_face_table
 from physdrape.geometry.query_inputs import check_faces, check_verts, packed_points
@@ -339,7 +340,8 @@ class BodySurface:
             self._verts64 = self.verts.detach().reshape(-1, 3).to(torch.float64).contiguous()
         return self._verts64
 
-    def query(self, points: Tensor, *, body_index: Tensor | None = None, near: Tensor | None = None) -> SurfaceQuery:
+    def query(self, points: Tensor, *, body_index: Tensor | None = None, near: Tensor | None = None,
+              bound: DistanceBound | None = None) -> SurfaceQuery:
         """Closest point, outward normal, signed distance and inside flag of many points.
 
         Args:
@@ -352,6 +354,9 @@ class BodySurface:
                 move ago): the closest triangle is then found by the local walk from it
                 (`closest_point.walk_to_closest_faces`), not by the BVH search of the whole
                 surface. None: the BVH search.
+            bound: an earlier exact query's `DistanceBound` of the same points (a row per point,
+                in the flattened order): a point in doubt that cannot have crossed the surface
+                since (`DistanceBound.sign`) keeps its side, without a winding number.
 
         Returns:
             A ``SurfaceQuery`` whose fields have the leading shape ``points.shape[:-1]``.
@@ -374,7 +379,8 @@ class BodySurface:
                                     face.to(torch.int32).contiguous(), self._faces32, *self._feature_normals(),
                                     near_tol=self.near_tol)
         inside, n, d = on.inside, on.normal, on.signed_distance  # the pseudo-normal's sign
-        sign = self.winding_sign(x32.__getitem__, body32, face, inside, on.near)
+        known = None if bound is None else (lambda rows: bound.select(rows).sign(x64[rows]))
+        sign = self.winding_sign(x32.__getitem__, body32, face, inside, on.near, known=known)
         if sign is not None:
             doubt, inside_doubt, flip_doubt = sign
             with torch.no_grad():
@@ -408,21 +414,29 @@ class BodySurface:
 
     @torch.no_grad()
     def winding_sign(self, points32: Callable[[Tensor], Tensor], body: Tensor, face: Tensor, inside: Tensor,
-                     near: Tensor) -> tuple[Tensor, Tensor, Tensor] | None:
+                     near: Tensor, *, known: Callable[[Tensor], Tensor] | None = None
+                     ) -> tuple[Tensor, Tensor, Tensor] | None:
         """The winding number's sign where the pseudo-normal's is in doubt (`in_doubt`), for M
         points of bodies `body` (M,) int32 whose closest faces are `face` (M,), and whose closest
         points' pseudo-normals call them `inside` (M,) bool, within near_tol of the surface where
         `near` (M,) bool; points32(rows) gives the rows' points (R, 3) float32 (formed only for the
-        rows in doubt). Returns the rows in doubt, their winding number inside flags and their sign
-        flips (−1 where the winding number disagrees off the surface: the normal and the signed
-        distance change sign; +1 elsewhere), or None with ``SignMethod.PSEUDO_NORMAL`` or no row in
-        doubt."""
+        rows in doubt); known(rows), if given, the side each of those rows must be on (R,) int8
+        (+1 outside, −1 inside, 0 unknown: `DistanceBound.sign`), which the rows it knows take
+        instead of a winding number. Returns the rows in doubt, their inside flags (the winding
+        number's, or known) and their sign flips (−1 where that flag disagrees off the surface: the
+        normal and the signed distance change sign; +1 elsewhere), or None with
+        ``SignMethod.PSEUDO_NORMAL`` or no row in doubt."""
         if self.sign_method is not SignMethod.WINDING_NUMBER:
             return None
         doubt = torch.nonzero(self.in_doubt(face, body))[:, 0]
         if not doubt.numel():
             return None
-        _, wn_inside = self._search(points32(doubt).contiguous(), body[doubt].contiguous(), winding=True)
+        side = torch.zeros(doubt.shape, dtype=torch.int8, device=doubt.device) if known is None else known(doubt)
+        unknown = side == 0
+        wn_inside = side < 0
+        if bool(unknown.any()):
+            ask = doubt[unknown]
+            wn_inside[unknown] = self._search(points32(ask).contiguous(), body[ask].contiguous(), winding=True)[1]
         # off the surface the normal points away from the inside
         flip = 1 - 2 * ((wn_inside != inside[doubt]) & ~near[doubt]).to(torch.int8)
         return doubt, wn_inside, flip

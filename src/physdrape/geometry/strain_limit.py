@@ -144,7 +144,8 @@ def limit_edge_stretch(
                     else:  # the vertices of live meshes that may have come within reach since their planes were found
                         rows = found.rows_below(flat, reach)
                         rows = rows[active[copy_of_vertex[rows]] != 0]
-                        query = body.query(flat[rows].to(body.verts.dtype), body_index=copy_of_vertex[rows])
+                        query = body.query(flat[rows].to(body.verts.dtype), body_index=copy_of_vertex[rows],
+                                           bound=found.select(rows))  # the side of those that cannot have crossed
                 if rows is None:
                     planes[0] = query.closest.reshape(-1, 3)
                     planes[1] = query.normal.reshape(-1, 3)

@@ -376,6 +376,7 @@ class _Relaxation:
         self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
         self._follower: PlaneFollower | None = None  # the local requeries' recorded launch (made at the first)
         self.bound: DistanceBound | None = None  # the samples' distances at the last full query
+        self._bound_bodies: BodySurface | None = None  # the bodies that query asked
         extra = extra_blocks(cloth)  # independent of x: formed once per solve, in the local terms' float64
         self._extra = None if extra is None else extra.to(torch.float64)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
@@ -385,7 +386,7 @@ class _Relaxation:
         other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band,
                             min_move=self.min_move)
         other.planes, other._faces, other._found_at = self.planes, self._faces, self._found_at
-        other._follower, other.bound = self._follower, self.bound
+        other._follower, other.bound, other._bound_bodies = self._follower, self.bound, self._bound_bodies
         if self.planes is not None:
             other._potential.hold(self.planes)
         return other
@@ -404,12 +405,12 @@ class _Relaxation:
         """
         with torch.no_grad():
             if not local or self.planes is None:
-                q = query_samples(x.detach(), self.cloth.faces, bodies, body_index)
+                q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, bound=self._bound_on(bodies))
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
                 self._faces = q.face
                 samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
-                self.bound = DistanceBound.of(samples, q.signed_distance)
+                self.bound, self._bound_bodies = DistanceBound.of(samples, q.signed_distance), bodies
                 if self.min_move > 0:
                     self._found_at = samples
                 change = None
@@ -419,13 +420,18 @@ class _Relaxation:
                     self._follower = PlaneFollower(self.cloth.faces, self.cloth.num_verts, bodies, body_index,
                                                    band=self.band, min_move=self.min_move, stiffness=self.stiffness,
                                                    margin=self.margin, device=x.device)
-                new = self._follower(x, *self.planes, self._faces, found_at)
+                new = self._follower(x, *self.planes, self._faces, found_at, bound=self._bound_on(bodies))
                 self.planes, self._faces = (new.closest, new.normal), new.face
                 if self._found_at is not None:
                     self._found_at = new.found_at
                 change = garment_energy(new.change, self.cloth)
         self._potential.hold(self.planes)
         return change
+
+    def _bound_on(self, bodies: BodySurface) -> DistanceBound | None:
+        """The last full query's bound where it was of these bodies (it decides the side of the
+        samples in doubt that cannot have crossed their surface since), else None."""
+        return self.bound if bodies is self._bound_bodies else None
 
     def potential(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64 (`physics.potential`: one launch), on the held planes."""

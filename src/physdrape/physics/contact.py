@@ -35,6 +35,7 @@ from physdrape.tensor_memo import TensorMemo
 from physdrape.warp_runtime import launch_arg, torch_stream, warp
 
 if TYPE_CHECKING:
+    from physdrape.geometry.distance_bound import DistanceBound
     from physdrape.geometry.proximity import BodySurface, SurfaceQuery
     from physdrape.physics.cloth import Cloth
 
@@ -60,10 +61,13 @@ def sample_index(per_vertex: Tensor, faces: Tensor) -> Tensor:
 
 
 def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None, *,
-                  rows: Tensor | None = None, near: Tensor | None = None) -> SurfaceQuery:
+                  rows: Tensor | None = None, near: Tensor | None = None,
+                  bound: DistanceBound | None = None) -> SurfaceQuery:
     """Body query of the samples of x (V, 3) [m], each against its vertex's body vert_body (V,)
     (None: the surface holds one body); rows: only these samples (indices into the V + F); near:
-    a body triangle per queried sample to walk from instead of the BVH search (`BodySurface.query`).
+    a body triangle per queried sample to walk from instead of the BVH search; bound: an earlier
+    exact query's bound of the V + F samples, which decides the side of those in doubt that cannot
+    have crossed the surface since (`BodySurface.query`).
 
     The samples are formed in the body's dtype; the query's fields have leading shape (V + F,),
     or that of rows.
@@ -72,7 +76,8 @@ def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tens
     index = None if vert_body is None else sample_index(vert_body, faces)
     if rows is not None:
         samples, index = samples[rows], None if index is None else index[rows]
-    return bodies.query(samples, body_index=index, near=near)
+        bound = None if bound is None else bound.select(rows)
+    return bodies.query(samples, body_index=index, near=near, bound=bound)
 
 
 @dataclass(frozen=True)
@@ -152,9 +157,12 @@ class PlaneFollower:
                     record_cmd=True)
 
     @torch.no_grad()
-    def __call__(self, x: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor) -> FollowedPlanes:
+    def __call__(self, x: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor, *,
+                 bound: DistanceBound | None = None) -> FollowedPlanes:
         """`follow_planes` of positions x (V, 3) [m] from these planes (closest points, normals,
-        faces and where each sample was when its plane was found, (V + F, ...) each)."""
+        faces and where each sample was when its plane was found, (V + F, ...) each); bound: an
+        exact query's bound of the samples, which decides the side of those in doubt that cannot
+        have crossed the body's surface since (`BodySurface.winding_sign`)."""
         if tuple(x.shape) != tuple(self._x.shape[1:]):
             raise ValueError(f"x must be the cloth's positions {tuple(self._x.shape[1:])}, got {tuple(x.shape)}")
         self._x[0].copy_(x.detach())
@@ -173,8 +181,11 @@ class PlaneFollower:
             def points32(doubt: Tensor) -> Tensor:
                 return contact_samples(x64, self.faces)[rows[doubt]].to(torch.float32)
 
+            def known(doubt: Tensor) -> Tensor:
+                return bound.select(rows[doubt]).sign(contact_samples(x64, self.faces)[rows[doubt]])
+
             sign = self.bodies.winding_sign(points32, self.body[rows], new_face[rows], (flags & 2).bool(),
-                                            (flags & 4).bool())
+                                            (flags & 4).bool(), known=None if bound is None else known)
             if sign is not None:
                 flipped = rows[sign[0][sign[2] < 0]]
                 if flipped.numel():
