@@ -28,14 +28,15 @@ def faces_inside(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_in
     """Whether each face's centroid is inside its body, (ΣF,) bool: decided exactly by the
     body-surface query (winding number; no margin). x [m] (ΣV, 3); body_index (ΣV,). `bound`: a
     `DistanceBound` of the vertices and then the centroids; the centroids it proves outside are
-    not queried."""
+    not queried, and it decides the side of those in doubt that cannot have crossed the surface."""
     faces = garments.faces
     centroids, owner = x[faces].mean(dim=1), body_index[faces[:, 0]]
     if bound is None:
         return bodies.query(centroids, body_index=owner).inside
-    rows = bound.part(x.shape[0], x.shape[0] + faces.shape[0]).rows_below(centroids, 0.0)
+    centroids_bound = bound.part(x.shape[0], x.shape[0] + faces.shape[0])
+    rows = centroids_bound.rows_below(centroids, 0.0)
     inside = torch.zeros(faces.shape[0], dtype=torch.bool, device=x.device)
-    inside[rows] = bodies.query(centroids[rows], body_index=owner[rows]).inside
+    inside[rows] = bodies.query(centroids[rows], body_index=owner[rows], bound=centroids_bound.select(rows)).inside
     return inside
 
 
@@ -90,9 +91,10 @@ def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_i
     if bound is None:
         distance = bodies.query(x, body_index=body_index).signed_distance
     else:  # the vertices proved farther than CONTACT_DISTANCE count as that far: neither close nor in contact
-        rows = bound.part(0, x.shape[0]).rows_below(x, CONTACT_DISTANCE)
+        verts_bound = bound.part(0, x.shape[0])
+        rows = verts_bound.rows_below(x, CONTACT_DISTANCE)
         distance = x.new_full((x.shape[0],), 2.0 * CONTACT_DISTANCE)
-        distance[rows] = bodies.query(x[rows], body_index=body_index[rows]).signed_distance
+        distance[rows] = bodies.query(x[rows], body_index=body_index[rows], bound=verts_bound.select(rows)).signed_distance
     verts_per_garment = x.new_zeros(count).index_add_(0, garments.vert_garment, torch.ones_like(distance))
     close = x.new_zeros(count).index_add_(0, garments.vert_garment, (distance < CLOSE_DISTANCE).to(x.dtype))
     force = internal_forces(x, cloth).norm(dim=-1)
