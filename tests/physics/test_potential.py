@@ -102,6 +102,25 @@ def test_ties_and_float32_positions():
     torch.testing.assert_close(got32, _composed(x32.double(), cloth, planes, external), rtol=1e-12, atol=1e-15)
 
 
+def test_dropping_the_external_force_gives_the_potential_without_it():
+    """After `drop_external` (the solver's steps past f̂), Φ and the local terms are those of a
+    potential built without the external force, to the bit, and the caller's force is untouched."""
+    _, cloth, x, planes, external = _case()
+    given = external.clone()
+    potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+    without = GarmentPotential(cloth, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+    for p in (potential, without):
+        p.hold(planes)
+    assert not torch.equal(potential(x), without(x))
+    potential.local_terms(x)  # launches recorded with the force in
+    potential.drop_external()
+    assert torch.equal(potential(x), without(x))
+    dropped, plain = potential.local_terms(x), without.local_terms(x)
+    for field in ("force", "blocks", "contact"):
+        assert torch.equal(getattr(dropped, field), getattr(plain, field)), field
+    assert torch.equal(external, given)
+
+
 def test_threads_split_by_garment_same_totals():
     """Two torch threads: the launch splits between whole garments and gives the one-thread totals."""
     _, cloth, x, planes, external = _case(sheet_cells=(40, 40))

@@ -222,7 +222,8 @@ class StretchingSolver(nn.Module):
         direction = last_z = last_force = None  # the previous conjugate direction, preconditioned force, force
         for t in range(steps):
             if f_hat is not None and t == self.f_hat_steps:
-                problem, phi = problem.without_f_hat(), None  # the conjugation goes on: PR+ restarts if needed
+                problem.drop_f_hat()
+                phi = None  # the conjugation goes on: PR+ restarts if needed
             if bodies is not None and t % requery_every == 0:
                 problem.requery(x, bodies, body_index)
                 phi = None
@@ -381,15 +382,10 @@ class _Relaxation:
         self._extra = None if extra is None else extra.to(torch.float64)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
 
-    def without_f_hat(self) -> _Relaxation:
-        """The same problem without the −f̂·x term, on the same held planes."""
-        other = _Relaxation(self.cloth, None, margin=self.margin, stiffness=self.stiffness, band=self.band,
-                            min_move=self.min_move)
-        other.planes, other._faces, other._found_at = self.planes, self._faces, self._found_at
-        other._follower, other.bound, other._bound_bodies = self._follower, self.bound, self._bound_bodies
-        if self.planes is not None:
-            other._potential.hold(self.planes)
-        return other
+    def drop_f_hat(self) -> None:
+        """Relax without the −f̂·x term from now on, on the same held planes."""
+        self.f_hat = None
+        self._potential.drop_external()
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *,
                 local: bool = False) -> Tensor | None:

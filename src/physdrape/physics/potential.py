@@ -116,8 +116,8 @@ class GarmentPotential:
         constant = element_kernels.kernel_constant
         self._x = torch.zeros(1, num_verts, 3, dtype=torch.float64, device=device)
         self._out = torch.zeros(cloth.num_garments, dtype=torch.float64, device=device)
-        self._external = (None if external is None else
-                          external.detach().to(device=device, dtype=torch.float64).contiguous())
+        self._external = (None if external is None else  # its own copy (`drop_external` zeroes it)
+                          external.detach().to(device=device, dtype=torch.float64, copy=True).contiguous())
         self._constants = [constant(t) for t in (cloth.faces, cloth.rest_inv, cloth.volume, cloth.mu, cloth.lam,
                                                  cloth.face_garment, cloth.hinges, cloth.bend_stiffness,
                                                  cloth.hinge_garment, cloth.mass, cloth.gravity, cloth.vert_garment)]
@@ -128,6 +128,12 @@ class GarmentPotential:
         # recorded launches: Φ's per thread count, the local terms' per ("local", thread count), the
         # compliance's per ("compliance", rel, tiny)
         self._launches: dict = {}
+
+    def drop_external(self) -> None:
+        """Evaluate Φ and the local terms without the external force's work from now on (its copy
+        zeroed: the recorded launches stay valid)."""
+        if self._external is not None:
+            self._external.zero_()
 
     def hold(self, planes: tuple[Tensor, Tensor] | None) -> None:
         """Evaluate the contact on these planes from now on: the samples' closest points and unit
