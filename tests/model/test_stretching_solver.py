@@ -97,10 +97,11 @@ def test_two_level_relaxes_far_more_than_explicit_steps():
     assert (left["explicit"] > 0.2).all(), left
 
 
-@pytest.mark.parametrize("kind", ["explicit", "two_level"])
-def test_gradients_reach_eta_gamma_and_f_hat(kind):
+@pytest.mark.parametrize("kind,follow", [("explicit", False), ("two_level", False), ("two_level", True)])
+def test_gradients_reach_eta_gamma_and_f_hat(kind, follow):
     batch, x0 = _case()
-    solver = _solver(kind, eta=0.7 if kind == "two_level" else 1e-3, gamma=0.9, max_step=0.01)
+    solver = _solver(kind, eta=0.7 if kind == "two_level" else 1e-3, gamma=0.9, max_step=0.01, requery_every=3,
+                     follow_planes=follow)
     f_hat = torch.zeros_like(x0, requires_grad=True)
     x = solver(x0, batch.cloth, f_hat=f_hat, steps=3, bodies=batch.bodies, body_index=batch.body_index)
     internal_energy(x, batch.cloth).sum().backward()
@@ -228,10 +229,13 @@ def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch)
     batch, x0 = _case(radii=(0.16, 0.185))
     held, original = [], module._Relaxation.requery
 
+    def copied(planes):  # the followed planes move in place: the state of each step kept
+        return None if planes is None else tuple(p.clone() for p in planes)
+
     def requery(self, x, bodies, body_index, **kwargs):
-        before = self.planes
+        before = copied(self.planes)
         change = original(self, x, bodies, body_index, **kwargs)
-        held.append((kwargs.get("local", False), x.detach().clone(), before, self.planes))
+        held.append((kwargs.get("local", False), x.detach().clone(), before, copied(self.planes)))
         return change
 
     monkeypatch.setattr(module._Relaxation, "requery", requery)
@@ -389,6 +393,27 @@ def test_inner_iterations_at_the_first_steps_by_mode(monkeypatch):
         assert calls == want
     with pytest.raises(ValueError, match="inner_iterations"):
         _solver(eta=1.0, inner_iterations=0)
+
+
+def test_planes_a_differentiated_force_may_keep_are_not_moved_by_the_next_followed_step():
+    """The followed planes move in place between steps; where the positions carry a gradient
+    (training through followed planes) each step's planes are its own, so that the backward of a
+    step's contact force reads the planes that step held."""
+    import physdrape.model.stretching_solver as module
+
+    batch, x0 = _case(radii=(0.16, 0.185))
+    gen = torch.Generator().manual_seed(3)
+    problem = module._Relaxation(batch.cloth, None, margin=2e-3, stiffness=2.5e3, band=0.01)
+    problem.requery(x0, batch.bodies, batch.body_index)
+    for grad in (True, False):
+        x1 = (x0 + 3e-3 * torch.randn(x0.shape, generator=gen, dtype=x0.dtype)).requires_grad_(grad)
+        problem.requery(x1, batch.bodies, batch.body_index, local=True)
+        first = problem.planes
+        kept = tuple(p.clone() for p in first)
+        x2 = (x1.detach() + 3e-3 * torch.randn(x0.shape, generator=gen, dtype=x0.dtype)).requires_grad_(grad)
+        problem.requery(x2, batch.bodies, batch.body_index, local=True)
+        unmoved = all(torch.equal(a, b) for a, b in zip(first, kept))
+        assert unmoved == grad  # without a gradient the planes are the follower's, moved in place
 
 
 def test_the_bound_of_the_last_full_query_is_returned():

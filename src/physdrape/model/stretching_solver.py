@@ -374,8 +374,9 @@ class _Relaxation:
         self.min_move = min_move
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
-        self._found_at: Tensor | None = None  # where each sample was when its plane was found (min_move > 0)
+        self._found_at: Tensor | None = None  # where each sample was when its plane was found
         self._follower: PlaneFollower | None = None  # the local requeries' recorded launch (made at the first)
+        self._follower_holds = False  # whether the follower holds the current planes
         self.bound: DistanceBound | None = None  # the samples' distances at the last full query
         self._bound_bodies: BodySurface | None = None  # the bodies that query asked
         extra = extra_blocks(cloth)  # independent of x: formed once per solve, in the local terms' float64
@@ -404,23 +405,26 @@ class _Relaxation:
                 q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, bound=self._bound_on(bodies))
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
-                self._faces = q.face
                 samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
+                self._faces, self._found_at, self._follower_holds = q.face, samples, False
                 self.bound, self._bound_bodies = DistanceBound.of(samples, q.signed_distance), bodies
-                if self.min_move > 0:
-                    self._found_at = samples
                 change = None
             else:
-                found_at = self.planes[0] if self._found_at is None else self._found_at  # unread with min_move 0
                 if self._follower is None or self._follower.bodies is not bodies:
                     self._follower = PlaneFollower(self.cloth.faces, self.cloth.num_verts, bodies, body_index,
                                                    band=self.band, min_move=self.min_move, stiffness=self.stiffness,
                                                    margin=self.margin, device=x.device)
-                new = self._follower(x, *self.planes, self._faces, found_at, bound=self._bound_on(bodies))
-                self.planes, self._faces = (new.closest, new.normal), new.face
-                if self._found_at is not None:
-                    self._found_at = new.found_at
-                change = garment_energy(new.change, self.cloth)
+                    self._follower_holds = False
+                follower = self._follower
+                if not self._follower_holds:
+                    follower.hold(*self.planes, self._faces, self._found_at)
+                    self._follower_holds = True
+                change = garment_energy(follower(x, bound=self._bound_on(bodies)), self.cloth)
+                # the follower's planes, moved in place at each call (copies where a differentiated
+                # force may keep them for its backward)
+                self.planes = ((follower.closest, follower.normal) if not x.requires_grad
+                               else (follower.closest.clone(), follower.normal.clone()))
+                self._faces, self._found_at = follower.face, follower.found_at
         self._potential.hold(self.planes)
         return change
 

@@ -110,18 +110,26 @@ def follow_planes(x: Tensor, faces: Tensor, closest: Tensor, normal: Tensor, fac
     """
     follower = PlaneFollower(faces, x.shape[0], bodies, vert_body, band=band, min_move=min_move, stiffness=stiffness,
                              margin=margin, device=x.device)
-    return follower(x, closest, normal, face, found_at)
+    follower.hold(closest, normal, face, found_at)
+    change = follower(x)
+    return FollowedPlanes(follower.closest.clone(), follower.normal.clone(), follower.face.to(torch.int64),
+                          follower.found_at.clone(), change.clone())
 
 
 class PlaneFollower:
     """`follow_planes` for the samples of one cloth's faces on one set of bodies, called at many
-    steps: its launch is recorded once on buffers of its own (the positions and the held planes
-    are copied in, the new planes out), so a call costs the kernel and a few copies, not the
-    packing of its thirty arguments.
+    steps: it holds the planes (`hold`) and each call moves the followed samples' planes in place,
+    with a launch recorded once on its own buffers, so a call costs the kernel and a copy of the
+    positions, not the packing of its thirty arguments nor copies of the planes.
 
     Args:
         faces: the cloth's faces (F, 3); num_verts: V.
         bodies, vert_body, band, min_move, stiffness, margin, as `follow_planes`.
+
+    Attributes:
+        closest, normal, face, found_at: the held planes, (V + F, ...) each: closest points and
+            unit normals (float64), body faces (int32), where each sample was when its plane was
+            found (float64); updated in place by each call.
     """
 
     def __init__(self, faces: Tensor, num_verts: int, bodies: BodySurface, vert_body: Tensor | None, *, band: float,
@@ -134,45 +142,48 @@ class PlaneFollower:
         def vec3() -> Tensor:
             return torch.zeros(num_samples, 3, dtype=torch.float64, device=device)
 
-        def int32() -> Tensor:
-            return torch.zeros(num_samples, dtype=torch.int32, device=device)
+        def scalar(dtype: torch.dtype) -> Tensor:
+            return torch.zeros(num_samples, dtype=dtype, device=device)
 
         self._x = torch.zeros(1, num_verts, 3, dtype=torch.float64, device=device)
-        self._held = (vec3(), vec3(), int32(), vec3())  # closest, normal, face, found at
-        self._out = (vec3(), vec3(), int32(), vec3(), torch.zeros(num_samples, dtype=torch.float64, device=device),
-                     int32())  # closest, normal, face, found at, change, followed
+        self.closest, self.normal, self.face, self.found_at = vec3(), vec3(), scalar(torch.int32), vec3()
+        self._before, self._change, self._followed = scalar(torch.float64), scalar(torch.float64), scalar(torch.int32)
         self._launch = None
         if num_samples:
             wp = warp()
             vec, f64, i32 = wp.vec3d, wp.float64, wp.int32
-            closest, normal, face, found_at = self._held
             with torch_stream(device):
                 self._launch = wp.launch(
                     contact_kernels.kernels()["follow"], dim=num_samples, device=wp.device_from_torch(device),
                     inputs=[launch_arg(self._x, vec), launch_arg(sample_corners(faces, num_verts), i32),
-                            launch_arg(closest, vec), launch_arg(normal, vec), launch_arg(face, i32),
-                            launch_arg(found_at, vec), launch_arg(self.body, i32), float(band), float(min_move),
+                            launch_arg(self.closest, vec), launch_arg(self.normal, vec), launch_arg(self.face, i32),
+                            launch_arg(self.found_at, vec), launch_arg(self.body, i32), float(band), float(min_move),
                             self.stiffness, self.margin, *bodies.walk_arrays().launch_args(wp, WALK_MOVES)],
-                    outputs=[launch_arg(t, kind) for t, kind in zip(self._out, (vec, vec, i32, vec, f64, i32))],
+                    outputs=[launch_arg(t, kind) for t, kind in
+                             zip((self._before, self._change, self._followed), (f64, f64, i32))],
                     record_cmd=True)
 
     @torch.no_grad()
-    def __call__(self, x: Tensor, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor, *,
-                 bound: DistanceBound | None = None) -> FollowedPlanes:
-        """`follow_planes` of positions x (V, 3) [m] from these planes (closest points, normals,
-        faces and where each sample was when its plane was found, (V + F, ...) each); bound: an
-        exact query's bound of the samples, which decides the side of those in doubt that cannot
-        have crossed the body's surface since (`BodySurface.winding_sign`)."""
+    def hold(self, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor) -> None:
+        """Hold these planes (closest points, normals, faces and where each sample was when its
+        plane was found, (V + F, ...) each; a full query's)."""
+        for held, given in zip((self.closest, self.normal, self.face, self.found_at), (closest, normal, face, found_at)):
+            held.copy_(given.detach())
+
+    @torch.no_grad()
+    def __call__(self, x: Tensor, *, bound: DistanceBound | None = None) -> Tensor:
+        """`follow_planes` of positions x (V, 3) [m] from the held planes, which it updates;
+        bound: an exact query's bound of the samples, which decides the side of those in doubt
+        that cannot have crossed the body's surface since (`BodySurface.winding_sign`). Returns
+        the change of each sample's penalty (V + F,) [J] float64 (0 where the plane was kept),
+        valid until the next call."""
         if tuple(x.shape) != tuple(self._x.shape[1:]):
             raise ValueError(f"x must be the cloth's positions {tuple(self._x.shape[1:])}, got {tuple(x.shape)}")
         self._x[0].copy_(x.detach())
-        for held, given in zip(self._held, (closest, normal, face, found_at)):
-            held.copy_(given.detach())
         if self._launch is not None:
             with torch_stream(x.device):
                 self._launch.launch()
-        new_closest, new_normal, new_face, new_found, change, followed = (t.clone() for t in self._out)
-        new_face = new_face.to(torch.int64)
+        change, followed = self._change, self._followed
         rows = torch.nonzero(followed)[:, 0]
         if rows.numel():  # the winding number's sign where it is in doubt, as a query takes it
             flags = followed[rows]
@@ -184,18 +195,17 @@ class PlaneFollower:
             def known(doubt: Tensor) -> Tensor:
                 return bound.select(rows[doubt]).sign(contact_samples(x64, self.faces)[rows[doubt]])
 
-            sign = self.bodies.winding_sign(points32, self.body[rows], new_face[rows], (flags & 2).bool(),
-                                            (flags & 4).bool(), known=None if bound is None else known)
+            sign = self.bodies.winding_sign(points32, self.body[rows], self.face[rows].to(torch.int64),
+                                            (flags & 2).bool(), (flags & 4).bool(), known=None if bound is None else known)
             if sign is not None:
                 flipped = rows[sign[0][sign[2] < 0]]
                 if flipped.numel():
-                    new_normal[flipped] = -new_normal[flipped]
+                    self.normal[flipped] = -self.normal[flipped]
                     points = contact_samples(x64, self.faces)[flipped]
-                    before = ((points - self._held[0][flipped]) * self._held[1][flipped]).sum(-1)
-                    after = ((points - new_closest[flipped]) * new_normal[flipped]).sum(-1)
+                    after = ((points - self.closest[flipped]) * self.normal[flipped]).sum(-1)
                     energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
-                    change[flipped] = energy(after) - energy(before)
-        return FollowedPlanes(new_closest, new_normal, new_face, new_found, change)
+                    change[flipped] = energy(after) - energy(self._before[flipped])
+        return change
 
 
 def contact_depth(distance: Tensor, *, margin: float) -> Tensor:

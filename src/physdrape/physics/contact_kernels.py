@@ -124,18 +124,19 @@ def kernels() -> dict:
                       rings: wp.array2d(dtype=wp.int32), max_moves: wp.int32,
                       face_normals: wp.array2d(dtype=wp.vec3d), edge_normals: wp.array3d(dtype=wp.vec3d),
                       vertex_normals: wp.array2d(dtype=wp.vec3d), near_tol: wp.float64,
-                      out_closest: wp.array(dtype=wp.vec3d), out_normal: wp.array(dtype=wp.vec3d),
-                      out_face: wp.array(dtype=wp.int32), out_found_at: wp.array(dtype=wp.vec3d),
-                      change: wp.array(dtype=wp.float64), followed: wp.array(dtype=wp.int32)):
+                      before: wp.array(dtype=wp.float64), change: wp.array(dtype=wp.float64),
+                      followed: wp.array(dtype=wp.int32)):
         """A sample within `band` of its plane (and, with min_move > 0, moved farther than that
         since `found_at`) walks from its plane's body face to the closest one and takes the plane
-        there (the closest point and the normal by the pseudo-normal's sign, as `BodySurface.query`
-        finds them before its winding-number check); `change` is its penalty on the new plane
-        minus that on the old one. The others keep theirs (change 0, followed 0)."""
+        there, in place (the closest point and the normal by the pseudo-normal's sign, as
+        `BodySurface.query` finds them before its winding-number check; `found_at` its position);
+        `change` is its penalty on the new plane minus that on the old one. The others keep theirs
+        (change 0, followed 0). `before`: each sample's distance to its old plane."""
         s = wp.tid()
         point = sample_point(x, corners, 0, s)
-        before = wp.dot(point - closest[s], normal[s])
-        follow = before < band
+        d_before = wp.dot(point - closest[s], normal[s])
+        before[s] = d_before
+        follow = d_before < band
         if min_move > f64(0.0):
             follow = follow and wp.length(point - found_at[s]) > min_move
         if follow:
@@ -143,17 +144,13 @@ def kernels() -> dict:
             f = walk(point, verts, b * num_verts, faces, rings, face[s], max_moves)
             p, _bary, n, d, flags = surface_point(point, verts, b, f, num_verts, faces, face_normals, edge_normals,
                                                   vertex_normals, near_tol)
-            out_closest[s] = p
-            out_normal[s] = n
-            out_face[s] = f
-            out_found_at[s] = point
-            change[s] = penalty(d, stiffness, margin) - penalty(before, stiffness, margin)
+            closest[s] = p
+            normal[s] = n
+            face[s] = f
+            found_at[s] = point
+            change[s] = penalty(d, stiffness, margin) - penalty(d_before, stiffness, margin)
             followed[s] = 1 + 2 * flags  # 2: inside by the pseudo-normal's sign, 4: on the surface
         else:
-            out_closest[s] = closest[s]
-            out_normal[s] = normal[s]
-            out_face[s] = face[s]
-            out_found_at[s] = found_at[s]
             change[s] = f64(0.0)
             followed[s] = 0
 
