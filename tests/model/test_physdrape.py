@@ -110,6 +110,12 @@ def test_coarse_levels_are_subsets_with_local_edges(two_tubes):
         ids, local = graph.nodes[level], graph.local_edge_index[level]
         assert 0 < len(ids) < len(graph.nodes[level - 1])
         torch.testing.assert_close(ids[local], graph.edge_index[:, graph.level == level])
+    # a batch of the same garments again reuses the levels (and their pieces); another order does not
+    assert GarmentBatch.pack(two_tubes).graph_levels(3) is graph
+    assert graph.part(0, two_tubes[0].num_verts) is graph.part(0, two_tubes[0].num_verts)
+    swapped = GarmentBatch.pack(two_tubes[::-1]).graph_levels(3)
+    assert swapped is not graph and swapped.edge_index.shape == graph.edge_index.shape
+    assert GarmentBatch.pack(two_tubes).graph_levels(2) is not graph
 
 
 def test_packed_batch_with_coarse_levels_equals_garments_alone(two_tubes):

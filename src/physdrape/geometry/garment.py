@@ -8,8 +8,10 @@ runs on one garment or many with the same code. Positions x are state and live e
 
 from __future__ import annotations
 
+import collections
 import hashlib
-from dataclasses import dataclass, fields, replace
+import threading
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 import torch
@@ -137,6 +139,7 @@ class GraphLevels:
     level: Tensor
     nodes: tuple[Tensor, ...]
     local_edge_index: tuple[Tensor, ...]
+    _parts: dict = field(default_factory=dict, compare=False, repr=False)  # `part`'s results, by (start, stop)
 
     @property
     def edge_counts(self) -> list[int]:
@@ -145,7 +148,12 @@ class GraphLevels:
     def part(self, start: int, stop: int) -> tuple[GraphLevels, list[Tensor]]:
         """The graphs of the batch vertices [start, stop) alone (whole garments: no edge leaves
         them), their vertex ids shifted to start at 0, and per level the positions of their edges
-        among the level's edges (for cutting per-edge values to match)."""
+        among the level's edges (for cutting per-edge values to match); formed once per piece."""
+        if (start, stop) not in self._parts:
+            self._parts[start, stop] = self._part(start, stop)
+        return self._parts[start, stop]
+
+    def _part(self, start: int, stop: int) -> tuple[GraphLevels, list[Tensor]]:
         nodes, local, chosen = [], [], []
         for ids, edges in zip(self.nodes, self.local_edge_index):
             lo, hi = (int(k) for k in torch.searchsorted(ids, torch.tensor([start, stop], device=ids.device)))
@@ -251,11 +259,26 @@ class GarmentBatch:
         The coarsening runs on the host (numpy, cached by topology); the graphs are on the batch's device."""
         if levels < 0:
             raise ValueError(f"levels must be ≥ 0, got {levels}")
+        keys = [_topology_key(garment) for garment in self.garments]
+        key = (tuple(keys), levels, str(self.device))
+        with _GRAPH_LEVELS_LOCK:
+            graph = _GRAPH_LEVELS.get(key)
+            if graph is not None:
+                _GRAPH_LEVELS.move_to_end(key)
+                return graph
+        graph = self._graph_levels(levels, keys)
+        with _GRAPH_LEVELS_LOCK:
+            _GRAPH_LEVELS[key] = graph
+            while len(_GRAPH_LEVELS) > _GRAPH_LEVELS_SIZE:
+                _GRAPH_LEVELS.popitem(last=False)
+        return graph
+
+    def _graph_levels(self, levels: int, keys: list[bytes]) -> GraphLevels:
         device = self.device
         per_level: list[list[Tensor]] = [[] for _ in range(levels)]
         offsets = self.vert_offsets.tolist()
-        for g, garment in enumerate(self.garments):
-            for l, edges in enumerate(_coarse_graphs(garment, levels)):
+        for g, (garment, key) in enumerate(zip(self.garments, keys)):
+            for l, edges in enumerate(_coarse_graphs(garment, levels, key)):
                 per_level[l].append(torch.from_numpy(topology.bidirectional_edges(edges)) + offsets[g])
         edge_index, nodes, local = [self.edge_index], [torch.arange(self.num_verts, device=device)], [self.edge_index]
         for parts in per_level:
@@ -283,15 +306,25 @@ class GarmentBatch:
 
 _COARSE_CACHE: dict[tuple[bytes, int], list[np.ndarray]] = {}
 _COARSE_CACHE_SIZE = 4096
+#: A batch's graph levels by its garments' topologies (a drape of the same garments reuses them).
+_GRAPH_LEVELS: collections.OrderedDict[tuple, GraphLevels] = collections.OrderedDict()
+_GRAPH_LEVELS_SIZE = 16
+_GRAPH_LEVELS_LOCK = threading.Lock()
 
 
-def _coarse_graphs(garment: Garment, levels: int) -> list[np.ndarray]:
-    """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across batches)."""
+def _topology_key(garment: Garment) -> bytes:
+    """A digest of a garment's edges and vertex count."""
     edges = garment.edges.cpu().numpy()
-    key = (hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii"), levels)
+    return hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii")
+
+
+def _coarse_graphs(garment: Garment, levels: int, topology_key: bytes | None = None) -> list[np.ndarray]:
+    """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across
+    batches); topology_key: `_topology_key(garment)`, where the caller has it."""
+    key = (_topology_key(garment) if topology_key is None else topology_key, levels)
     graphs = _COARSE_CACHE.get(key)
     if graphs is None:  # held locally: another thread's clear() cannot take it away before the return
-        graphs = topology.coarse_graphs(edges, garment.num_verts, levels)
+        graphs = topology.coarse_graphs(garment.edges.cpu().numpy(), garment.num_verts, levels)
         if len(_COARSE_CACHE) >= _COARSE_CACHE_SIZE:
             _COARSE_CACHE.clear()
         _COARSE_CACHE[key] = graphs
