@@ -36,7 +36,7 @@ from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
 from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
-from physdrape.physics import Cloth, internal_forces, relax
+from physdrape.physics import Cloth, relax
 from physdrape.physics.metrics import drape_metrics, faces_inside
 from physdrape.pipeline import (
     DEFAULT_DTYPE,
@@ -466,9 +466,8 @@ class Draper:
         """One `DrapeResult` per job (timings filled in by the caller; `bound`: the model's, or None)."""
         batch, cloth, bodies = inp.garments, inp.cloth, inp.bodies
         inside = faces_inside(x, batch, bodies, inp.body_index, bound=bound)
-        metrics = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside, bound=bound).as_dict()
-        weight = cloth.mass * cloth.gravity[cloth.vert_garment].norm(dim=-1)
-        residual = batch.split((internal_forces(x, cloth).norm(dim=-1) / weight)[:, None])
+        found = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside, bound=bound)
+        metrics, residual = found.as_dict(), batch.split(found.vertex_residual[:, None])
         inside = torch.split(inside, [int(n) for n in torch.bincount(batch.face_garment, minlength=len(jobs))])
         xs, inits, body_faces = batch.split(x), batch.split(inp.x_init), state.faces.cpu().numpy().astype(np.int64)
         return [DrapeResult(

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -63,7 +63,8 @@ class DrapeMetrics:
     strain, bend: energies [J] under the default material (comparable across runs whatever
     material was draped); b2g_percent: see `b2g_percent`; close_percent: share of vertices with
     signed distance < 1 mm [%]; residual_force: mean ‖F_int‖ over vertices not in contact [N];
-    residual_relative: the same, each vertex's force divided by its weight m_i·g (mean).
+    residual_relative: the same, each vertex's force divided by its weight m_i·g (mean), which
+    `vertex_residual` holds for every vertex (ΣV,), in contact or not (not a per-garment metric).
     """
 
     strain: Tensor
@@ -72,9 +73,11 @@ class DrapeMetrics:
     close_percent: Tensor
     residual_force: Tensor
     residual_relative: Tensor
+    vertex_residual: Tensor | None = field(default=None, compare=False, repr=False)
 
     def as_dict(self) -> dict[str, list[float]]:
-        return {name: getattr(self, name).tolist() for name in self.__dataclass_fields__}
+        """The per-garment metrics by name."""
+        return {name: getattr(self, name).tolist() for name in self.__dataclass_fields__ if name != "vertex_residual"}
 
 
 @torch.no_grad()
@@ -102,7 +105,8 @@ def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_i
     free = (distance > CONTACT_DISTANCE).to(x.dtype)
     free_count = x.new_zeros(count).index_add_(0, garments.vert_garment, free).clamp_min(1.0)
     residual = x.new_zeros(count).index_add_(0, garments.vert_garment, force * free) / free_count
-    relative = x.new_zeros(count).index_add_(0, garments.vert_garment, force / weight * free) / free_count
+    vertex_residual = force / weight
+    relative = x.new_zeros(count).index_add_(0, garments.vert_garment, vertex_residual * free) / free_count
     return DrapeMetrics(
         strain=reference.sum_per_garment(strain_energy(x, reference), reference.face_garment),
         bend=reference.sum_per_garment(bend_energy(x, reference), reference.hinge_garment),
@@ -112,4 +116,5 @@ def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_i
         close_percent=100.0 * close / verts_per_garment,
         residual_force=residual,
         residual_relative=relative,
+        vertex_residual=vertex_residual,
     )
