@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import reverse_cuthill_mckee, shortest_path
 
 
 def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -279,3 +283,49 @@ def smoothed_prolongation(edges: np.ndarray, num_verts: int, label: np.ndarray, 
             prolong = average @ prolong
         prolong = sp.diags(1.0 / np.asarray(prolong.sum(1)).ravel()) @ prolong
     return prolong.tocsr()
+
+
+#: Cuthill–McKee starts tried by `narrow_band_order`: the nodes farthest from the others.
+BAND_ORDER_STARTS = 16
+
+
+def narrow_band_order(rows: np.ndarray, cols: np.ndarray, num_nodes: int) -> np.ndarray:
+    """A numbering of a symmetric sparsity pattern's nodes (new → old; entries (rows, cols))
+    under which its entries lie close to the diagonal: the narrowest of reverse Cuthill–McKee
+    orderings from scipy's start and from the `BAND_ORDER_STARTS` nodes of largest eccentricity,
+    and the identity. Which start gives the narrowest band depends on the graph (on a garment's
+    coarse patches the best start narrows scipy's band by about a fifth; a band factorisation
+    costs the width squared)."""
+    graph = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_nodes, num_nodes))
+    graph = (graph + graph.T).tocsr()
+    degree = np.diff(graph.indptr)
+
+    def width(order: np.ndarray) -> int:
+        new = np.empty_like(order)
+        new[order] = np.arange(num_nodes)
+        return int(np.abs(new[rows] - new[cols]).max(initial=0))
+
+    def reverse_cuthill_mckee_from(start: int) -> np.ndarray:
+        order, seen = [], np.zeros(num_nodes, bool)
+        for root in [start, *np.argsort(degree, kind="stable").tolist()]:  # every component
+            if seen[root]:
+                continue
+            seen[root] = True
+            queue = collections.deque([root])
+            while queue:
+                node = queue.popleft()
+                order.append(node)
+                around = graph.indices[graph.indptr[node]:graph.indptr[node + 1]]
+                fresh = [n for n in around.tolist() if not seen[n]]
+                for n in sorted(fresh, key=lambda n: (degree[n], n)):
+                    seen[n] = True
+                    queue.append(n)
+        return np.array(order[::-1], dtype=np.int64)
+
+    candidates = [np.arange(num_nodes), reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.int64)]
+    if num_nodes:
+        hops = shortest_path(graph, unweighted=True)
+        eccentricity = np.where(np.isinf(hops), -1.0, hops).max(axis=1)
+        starts = np.lexsort((np.arange(num_nodes), -eccentricity))[:BAND_ORDER_STARTS]
+        candidates += [reverse_cuthill_mckee_from(int(s)) for s in starts]
+    return min(candidates, key=width)

@@ -55,7 +55,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import torch
-from scipy.sparse.csgraph import reverse_cuthill_mckee
 from torch import Tensor
 
 from physdrape.geometry import topology
@@ -92,16 +91,8 @@ def _garment_prolongation(faces: np.ndarray, num_verts: int, levels: int, smooth
 
 def _band_order(blocks: np.ndarray, patches: int) -> np.ndarray:
     """A numbering of the patches (new → old) under which the coarse blocks (keys I · patches + J)
-    lie close to the diagonal: reverse Cuthill–McKee's, or the aggregation's own (a breadth-first
-    layering already) where that is narrower."""
-    rows, cols = blocks // patches, blocks % patches
-    graph = sp.csr_matrix((np.ones(len(blocks)), (rows, cols)), shape=(patches, patches))
-    order = reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.int64)
-    new = np.empty_like(order)
-    new[order] = np.arange(patches)
-    if np.abs(new[rows] - new[cols]).max(initial=0) < np.abs(rows - cols).max(initial=0):
-        return order
-    return np.arange(patches)
+    lie close to the diagonal (`topology.narrow_band_order`)."""
+    return topology.narrow_band_order(blocks // patches, blocks % patches, patches)
 
 
 def _galerkin_operator(prolong: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
