@@ -467,9 +467,8 @@ class _Relaxation:
         if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
             force = self.force(x)
         else:
-            force = terms.force.to(x.dtype)
+            force = terms.force.to(x.dtype, copy=True)  # the terms are the potential's buffers: copied out
             ties = tie_forces(x.detach(), self.cloth)
             force = force if ties is None else force + ties
-        contact = None if self.planes is None and extra is None else terms.contact
-        inverse = terms.compliance
-        return force, None if contact is None else contact.to(x.dtype), inverse.to(x.dtype)
+        contact = None if self.planes is None and extra is None else terms.contact.to(x.dtype, copy=True)
+        return force, contact, terms.compliance.to(x.dtype, copy=True)

@@ -163,7 +163,8 @@ class GarmentPotential:
         the majorant's vertex blocks and the contact's blocks, samples within `band` of their
         plane taken at depth ≥ ε (`contact.plane_contact_blocks`), plus `extra` (V, 3, 3) [N/m]
         if given; with `rel`, also the inverses of the vertices' blocks and contact blocks, floored
-        by rel and tiny (`physics.majorant.compliance`), in a second launch. Not differentiated."""
+        by rel and tiny (`physics.majorant.compliance`), in a second launch. Not differentiated.
+        The terms are this potential's buffers, valid until its next `local_terms` call."""
         if tuple(x.shape) != (self.cloth.num_verts, 3):
             raise ValueError(f"x must be the cloth's packed positions ({self.cloth.num_verts}, 3), got {tuple(x.shape)}")
         threads = torch.get_num_threads() if x.device.type == "cpu" else 1
@@ -193,8 +194,8 @@ class GarmentPotential:
                                                                 tiny=tiny)
                     if self._launches[key] is not None:
                         self._launches[key].launch()
-                    inverse = self._inverse.clone()
-            return LocalTerms(terms.force.clone(), terms.blocks.clone(), terms.contact.clone(), inverse)
+                    inverse = self._inverse
+            return LocalTerms(terms.force, terms.blocks, terms.contact, inverse)
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64, at positions x (V, 3) [m]; not differentiated."""
