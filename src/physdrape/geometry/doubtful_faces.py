@@ -68,7 +68,9 @@ def doubtful_faces(verts: Tensor, faces: Tensor, vertex_normals: Tensor, border:
             buried[crossed] = winding_inside(crossed)
     buried = buried.reshape(num_bodies, num_verts)
     buried[:, border] = True
-    longest = (verts[:, faces] - verts[:, faces.roll(1, dims=1)]).norm(dim=-1).amax(dim=2)  # (B, Fb)
+    a, b, c = (verts.index_select(1, faces[:, k]) for k in range(3))
+    longest = torch.maximum(torch.maximum((b - a).square().sum(-1), (c - b).square().sum(-1)),
+                            (a - c).square().sum(-1)).sqrt()  # each face's longest edge (B, Fb)
     reach = verts.new_zeros(num_bodies, num_verts).scatter_reduce(  # e of each vertex (B, Vb)
         1, faces.reshape(1, -1).expand(num_bodies, -1), longest.repeat_interleave(3, dim=1), "amax")
     near = torch.zeros(num_bodies, num_verts, dtype=torch.bool, device=verts.device)
