@@ -24,7 +24,7 @@ from torch import Tensor
 
 from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
-from physdrape.warp_runtime import defined_once, torch_stream, warp
+from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
 __all__ = ["limit_edge_stretch", "max_edge_stretch"]
 
@@ -113,28 +113,29 @@ def limit_edge_stretch(
     copy_of_edge = torch.arange(copies, dtype=torch.int32, device=x.device).repeat_interleave(edges.shape[0])
     copy_of_vertex = torch.arange(copies, dtype=torch.int32, device=x.device).repeat_interleave(num_verts)
     planes = torch.zeros(3, *flat.shape, dtype=torch.float64, device=x.device)  # closest, normal, (floor, 0, 0)
-    w = {name: wp.from_torch(t, dtype=wp.vec3d) for name, t in
+    w = {name: launch_arg(t, wp.vec3d) for name, t in
          (("x", flat), ("next", buffers[0]), ("shift", buffers[1]), ("velocity", buffers[2]),
           ("closest", planes[0]), ("normal", planes[1]), ("floor", planes[2]))}
-    w_ends = wp.from_torch(ends.to(torch.int32).contiguous(), dtype=wp.int32)
-    w_bound, w_count = wp.from_torch(bound, dtype=wp.float64), wp.from_torch(count, dtype=wp.float64)
-    w_stats, w_active = wp.from_torch(stats, dtype=wp.float64), wp.from_torch(active, dtype=wp.int32)
-    w_edge_copy, w_vertex_copy = wp.from_torch(copy_of_edge, dtype=wp.int32), wp.from_torch(copy_of_vertex, dtype=wp.int32)
+    w_ends = launch_arg(ends.to(torch.int32).contiguous(), wp.int32)
+    w_bound, w_count = launch_arg(bound, wp.float64), launch_arg(count, wp.float64)
+    w_stats, w_active = launch_arg(stats, wp.float64), launch_arg(active, wp.int32)
+    w_edge_copy, w_vertex_copy = launch_arg(copy_of_edge, wp.int32), launch_arg(copy_of_vertex, wp.int32)
     held, found, previous, live = False, None, [None] * copies, [True] * copies
     with torch_stream(x.device):
         # the sweeps' launches, recorded once (their arrays stay the same): a recorded launch
         # replays without packing its arguments again, which costs more than a small kernel's
-        # work on the CPU and holds the GIL that parallel X_inits share
+        # work on the CPU and holds the GIL that parallel X_inits share; the depth check and the
+        # sweep on held planes only with a body
         edge = wp.launch(edge_kernel, dim=ends.shape[0], device=device, record_cmd=True,
                          inputs=[w["x"], w_ends, w_bound, w_edge_copy, w_active, w["shift"], w_count, w_stats])
-        depth = wp.launch(depth_kernel, dim=flat.shape[0], device=device, record_cmd=True,
-                          inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_vertex_copy, w_active,
-                                  w_stats])
+        depth = None if body is None else wp.launch(
+            depth_kernel, dim=flat.shape[0], device=device, record_cmd=True,
+            inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_vertex_copy, w_active, w_stats])
         vertex = [wp.launch(vertex_kernel, dim=flat.shape[0], device=device, record_cmd=True,
                             inputs=[w["x"], w["shift"], w_count, w["velocity"], float(relaxation), float(momentum),
                                     w["closest"], w["normal"], w["floor"], planes_held, w_vertex_copy, w_active,
                                     w["next"]])
-                  for planes_held in (0, 1)]
+                  for planes_held in ((0,) if body is None else (0, 1))]
         for sweep in range(iterations):
             if body is not None and sweep % requery_every == 0:
                 with torch.no_grad():  # in the body's dtype (the planes hold to its precision)
