@@ -1,11 +1,12 @@
 """`TensorMemo`: values derived from a tensor, by identity, remade after an in-place change, let go
-when the tensor dies, the most recently used kept."""
+when the tensor dies, the most recently used kept; `IdentityMemo`: values derived from a few
+objects, by identity and a key, and what uses it (a batch packed again, its cloth built again)."""
 
 import gc
 
 import torch
 
-from physdrape.tensor_memo import TensorMemo
+from physdrape.tensor_memo import IdentityMemo, TensorMemo
 
 
 def test_a_value_is_made_once_per_tensor_and_again_after_an_in_place_change():
@@ -46,3 +47,33 @@ def test_a_recycled_id_does_not_return_another_tensors_value():
         t = torch.full((2,), float(k))
         assert float(memo.get(t, lambda u: u.clone())[0]) == k
         del t
+
+
+def test_identity_memo_reuses_a_value_for_the_same_objects_and_key_only():
+    class Thing:
+        pass
+
+    memo, a, b = IdentityMemo(2), Thing(), Thing()
+    first = memo.get((a, b), "k", lambda: object())
+    assert memo.get((a, b), "k", lambda: object()) is first
+    assert memo.get((b, a), "k", lambda: object()) is not first  # the order counts
+    assert memo.get((a, b), "other", lambda: object()) is not first  # so does the key
+    assert memo.get((a, b), "k", lambda: object()) is not first  # the oldest let go (size 2)
+    memo.clear()
+    assert not memo._values
+
+
+def test_the_same_garments_pack_into_the_same_batch_and_cloth():
+    from physdrape.geometry.garment import Garment, GarmentBatch
+    from physdrape.geometry.primitives import grid_sheet
+    from physdrape.physics import Cloth, Material
+
+    sheet = Garment.from_mesh(*grid_sheet(4, 3, width=0.4, height=0.3), name="sheet")
+    other = Garment.from_mesh(*grid_sheet(4, 3, width=0.4, height=0.3), name="sheet")  # equal, not the same
+    batch = GarmentBatch.pack([sheet, other])
+    assert GarmentBatch.pack([sheet, other]) is batch and GarmentBatch.pack([other, sheet]) is not batch
+    assert GarmentBatch.pack([sheet, sheet]) is not batch and batch.to(batch.dtype) is batch
+    assert batch.to(torch.float32).dtype == torch.float32
+    cloth = Cloth.build(batch)
+    assert Cloth.build(batch) is cloth and Cloth.build(batch, Material(density=0.3)) is not cloth
+    assert Cloth.build(batch, [Material(), Material()]) is cloth  # the default material for each

@@ -1,12 +1,14 @@
 """Values derived from a tensor, kept while that tensor lives unmodified: for what a solver derives
-from the same cloth tensors dozens of times per drape (kernel-typed copies, split points)."""
+from the same cloth tensors dozens of times per drape (kernel-typed copies, split points); and
+values derived from a few objects, kept while those objects live (`IdentityMemo`: a batch packed
+from the same garments, its cloth in the same materials)."""
 
 from __future__ import annotations
 
 import collections
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from typing import TypeVar
 
 from torch import Tensor
@@ -49,3 +51,35 @@ class TensorMemo:
             hit = self._values.get(key)
             if hit is not None and hit[0] is ref:
                 del self._values[key]
+
+
+class IdentityMemo:
+    """make() per tuple of objects (by identity) and a hashable key, reused while those objects
+    live (weak references are checked, so a recycled id makes the value again); the `size` most
+    recently used are kept. The objects must be immutable in what make() reads. Safe to share
+    between threads (a value may then be made twice, once per thread, and either kept)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._values: collections.OrderedDict[tuple, tuple[tuple[weakref.ref, ...], object]] = collections.OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, objects: tuple, key: Hashable, make: Callable[[], V]) -> V:
+        full = (tuple(id(o) for o in objects), key)
+        with self._lock:
+            hit = self._values.get(full)
+            if hit is not None and all(ref() is o for ref, o in zip(hit[0], objects)):
+                self._values.move_to_end(full)
+                return hit[1]
+        value = make()
+        with self._lock:
+            self._values[full] = (tuple(weakref.ref(o) for o in objects), value)
+            self._values.move_to_end(full)
+            while len(self._values) > self.size:
+                self._values.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        """Forget every value."""
+        with self._lock:
+            self._values.clear()

@@ -20,6 +20,7 @@ from torch import Tensor
 from physdrape.geometry import topology
 from physdrape.geometry.mesh import check_mesh
 from physdrape.geometry.normals import vertex_normals  # noqa: F401  (re-exported beside the garment types)
+from physdrape.tensor_memo import IdentityMemo
 
 
 def rest_frames(rest: Tensor, faces: Tensor) -> tuple[Tensor, Tensor]:
@@ -196,12 +197,17 @@ class GarmentBatch:
 
     @staticmethod
     def pack(garments) -> "GarmentBatch":
-        """Pack garments (a sequence of `Garment`, or a single one) into one batch."""
+        """Pack garments (a sequence of `Garment`, or a single one) into one batch; the same
+        garments (by identity) in the same order give the same batch object again."""
         if isinstance(garments, Garment):
             garments = [garments]
         garments = tuple(garments)
         if not garments:
             raise ValueError("GarmentBatch.pack needs at least one garment")
+        return _PACKED.get(garments, None, lambda: GarmentBatch._pack(garments))
+
+    @staticmethod
+    def _pack(garments: tuple[Garment, ...]) -> GarmentBatch:
         dtypes = {g.rest.dtype for g in garments}
         if len(dtypes) > 1:
             raise ValueError(f"garments of one batch must share a dtype, got {sorted(map(str, dtypes))}")
@@ -298,12 +304,16 @@ class GarmentBatch:
 
     def to(self, dtype: torch.dtype | None = None, *, device: torch.device | str | None = None) -> "GarmentBatch":
         """The same batch with floating tensors in `dtype` (None: kept) and every tensor, the
-        unpacked garments' included, on `device` (None: kept)."""
+        unpacked garments' included, on `device` (None: kept); this batch itself where nothing changes."""
+        if (dtype is None or dtype == self.dtype) and (device is None or torch.device(device) == self.device):
+            return self
         changes = {f.name: value.to(device=device, dtype=dtype if value.is_floating_point() else None)
                    for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)}
         return replace(self, garments=tuple(g.to(dtype, device=device) for g in self.garments), **changes)
 
 
+#: Batches by their garments (a drape of the same garments packs them once).
+_PACKED = IdentityMemo(16)
 _COARSE_CACHE: dict[tuple[bytes, int], list[np.ndarray]] = {}
 _COARSE_CACHE_SIZE = 4096
 #: A batch's graph levels by its garments' topologies (a drape of the same garments reuses them).

@@ -17,6 +17,7 @@ from physdrape.physics.grip import Grip
 from physdrape.physics.layers import LayerOrder
 from physdrape.physics.material import DEFAULT_MATERIAL, Material
 from physdrape.physics.stitches import Stitches
+from physdrape.tensor_memo import IdentityMemo
 
 
 @dataclass(frozen=True)
@@ -58,11 +59,16 @@ class Cloth:
 
     @staticmethod
     def build(garments: GarmentBatch | Garment, materials: Material | Sequence[Material] = DEFAULT_MATERIAL) -> "Cloth":
-        """Coefficients for a batch; `materials` is one for all garments or one per garment."""
+        """Coefficients for a batch; `materials` is one for all garments or one per garment. The
+        same batch object in the same materials gives the same cloth object again."""
         batch = garments if isinstance(garments, GarmentBatch) else GarmentBatch.pack(garments)
         mats = [materials] * batch.num_garments if isinstance(materials, Material) else list(materials)
         if len(mats) != batch.num_garments:
             raise ValueError(f"got {len(mats)} materials for {batch.num_garments} garments: give one, or one per garment")
+        return _BUILT.get((batch,), tuple(mats), lambda: Cloth._build(batch, mats))
+
+    @staticmethod
+    def _build(batch: GarmentBatch, mats: list[Material]) -> Cloth:
         dtype, device = batch.dtype, batch.device
 
         def per_garment(name: str) -> Tensor:
@@ -130,3 +136,7 @@ class Cloth:
         """Sum per-element values (..., N) into per-garment totals (..., G) using `owner` (N,)."""
         out = values.new_zeros(*values.shape[:-1], self.num_garments)
         return out.index_add_(-1, owner, values)
+
+
+#: Cloths by batch and materials (a drape of the same garments builds its cloth once).
+_BUILT = IdentityMemo(16)
