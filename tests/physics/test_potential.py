@@ -217,6 +217,34 @@ def test_local_terms_are_the_force_and_blocks_of_each_term(device, with_planes, 
         torch.testing.assert_close(floored.compliance.cpu(), torch.linalg.inv(k), rtol=1e-8, atol=1e-12)
 
 
+def test_local_terms_with_pair_blocks_are_the_same_terms_plus_the_majorants_pair_blocks():
+    """Asked for a coarse space's pair layout, the local terms' launch also forms the strain
+    majorant's pair blocks (`majorant.pair_blocks`), and the other terms are those without it;
+    the layout's launch is kept beside the plain one (one thread and two: split by garment)."""
+    from physdrape.physics.coarse_space import CoarseSpace
+    from physdrape.physics.majorant import pair_blocks
+
+    _, cloth, x, planes, external = _case()
+    potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+    potential.hold(planes)
+    layout = CoarseSpace(cloth).pair_layout
+    before = torch.get_num_threads()
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            plain = potential.local_terms(x, rel=1e-6)
+            plain = [t.clone() for t in (plain.force, plain.blocks, plain.contact, plain.compliance)]
+            with_pairs = potential.local_terms(x, rel=1e-6, pairs=layout)
+            for a, b in zip(plain, (with_pairs.force, with_pairs.blocks, with_pairs.contact, with_pairs.compliance)):
+                assert torch.equal(a, b)
+            want = pair_blocks(x, cloth, *layout)
+            assert with_pairs.pairs.shape == (layout[1], 3, 3) and want.abs().amax() > 0
+            torch.testing.assert_close(with_pairs.pairs, want, rtol=1e-12, atol=1e-12 * float(want.abs().amax()))
+            assert potential.local_terms(x, rel=1e-6).pairs is None
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_local_terms_split_by_garment_same_terms():
     """Two torch threads: the local terms' launch splits between whole garments, same sums."""
     _, cloth, x, planes, external = _case(sheet_cells=(40, 40))

@@ -230,9 +230,10 @@ class StretchingSolver(nn.Module):
             elif bodies is not None and follow_planes:
                 change = problem.requery(x, bodies, body_index, local=True)
                 phi = None if phi is None else phi + change  # Φ at x on the followed planes, without a new evaluation
-            force, contact, inverse = problem.step_terms(x)
-            if t % self.refactor_every == 0 or t < self.refactor_first:
-                coarse.factor(x, contact)
+            refactor = t % self.refactor_every == 0 or t < self.refactor_first
+            force, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout if refactor else None)
+            if refactor:
+                coarse.factor(x, contact, pairs)
             precondition = partial(_precondition, inverse, coarse)
             iterations = self.inner_iterations if self.training else self.eval_inner_iterations
             if t < self.inner_steps and iterations > 1:
@@ -277,9 +278,9 @@ class StretchingSolver(nn.Module):
         problem = self._relaxation(cloth, None)
         if bodies is not None:
             problem.requery(x, bodies, body_index)
-        _, contact, inverse = problem.step_terms(x)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
-        coarse.factor(x, contact)
+        _, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout)
+        coarse.factor(x, contact, pairs)
         return partial(_precondition, inverse, coarse)
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
@@ -447,7 +448,8 @@ class _Relaxation:
             force = force + self.f_hat
         return force
 
-    def step_terms(self, x: Tensor) -> tuple[Tensor, Tensor | None, Tensor]:
+    def step_terms(self, x: Tensor, *, pairs: tuple[Tensor, int] | None = None
+                   ) -> tuple[Tensor, Tensor | None, Tensor, Tensor | None]:
         """What a step starts from at x, in x's dtype, from one launch (`GarmentPotential.local_terms`):
 
         - the force −∇Φ (V, 3) [N]; where x or f̂ carries a gradient (training), the force of
@@ -458,12 +460,15 @@ class _Relaxation:
           their coupling); or None without any;
         - the inverses of the per-vertex stiffness blocks K_i (strain, bending, contact) (V, 3, 3)
           [m/N], each floored relative to its own stiffness (`physics.majorant.compliance`): each
-          vertex gets the compliance of its own stiffness.
+          vertex gets the compliance of its own stiffness;
+        - with `pairs` (a coarse space's `pair_layout`), the strain majorant's pair blocks
+          (P, 3, 3) float64 from the same launch, for the coarse factorisation (valid until the
+          next call); else None.
         """
         extra = self._extra
         terms = self._potential.local_terms(x, extra=extra,
                                             rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
-                                            tiny=float(torch.finfo(x.dtype).tiny))
+                                            tiny=float(torch.finfo(x.dtype).tiny), pairs=pairs)
         if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
             force = self.force(x)
         else:
@@ -471,4 +476,4 @@ class _Relaxation:
             ties = tie_forces(x.detach(), self.cloth)
             force = force if ties is None else force + ties
         contact = None if self.planes is None and extra is None else terms.contact.to(x.dtype, copy=True)
-        return force, contact, terms.compliance.to(x.dtype, copy=True)
+        return force, contact, terms.compliance.to(x.dtype, copy=True), terms.pairs

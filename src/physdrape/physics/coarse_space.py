@@ -66,7 +66,8 @@ from physdrape.physics.coarse_factor import (
 )
 from physdrape.physics.forces import links
 from physdrape.physics.galerkin import GalerkinProduct
-from physdrape.physics.majorant import PairBlocks, pair_product
+from physdrape.physics.majorant import pair_blocks as majorant_pair_blocks
+from physdrape.physics.majorant import pair_product
 from physdrape.threads import one_blas_thread
 
 __all__ = ["CoarseSpace"]
@@ -354,20 +355,27 @@ class CoarseSpace:
         self._factors: list | None = None  # band: one per garment (NumPy); dense: (count, n, n) per group
         self._gram: list[Tensor] | None = None
         self.blocks: Tensor | None = None  # K at the last `factor`: a 3 × 3 block per vertex pair, float64
-        self._pair_blocks: PairBlocks | None = None  # the strain majorant's pair blocks, recorded at the first factor
         self._ends32: Tensor | None = None  # the pairs' vertices, int32 (what the product kernel reads)
 
-    def factor(self, x: Tensor, vertex_blocks: Tensor | None = None) -> None:
+    @property
+    def pair_layout(self) -> tuple[Tensor, int]:
+        """Where each face's corner-pair blocks go among the vertex pairs (pair_of_corner (F, 9)
+        int32) and how many pairs there are: what `physics.majorant.pair_blocks` forms K's blocks in."""
+        return self._s.pair_of_corner, self._s.num_pairs
+
+    def factor(self, x: Tensor, vertex_blocks: Tensor | None = None, pair_blocks: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
         blocks added to the strain majorant's (the solver's contact blocks and
         `physics.forces.extra_blocks`), or None. The cloth's links add their coupling −H between
         the two vertices of each link; their diagonal blocks H are part of `extra_blocks`, which
-        vertex_blocks must then include for K to be PSD."""
+        vertex_blocks must then include for K to be PSD. pair_blocks: the strain majorant's pair
+        blocks at x in `pair_layout` (a solver forms them with its step's local terms), or None
+        (formed here)."""
         s = self._s
         with torch.no_grad():
-            if self._pair_blocks is None:
-                self._pair_blocks = PairBlocks(self.cloth, s.pair_of_corner, s.num_pairs)
-            blocks = self._pair_blocks(x)
+            if pair_blocks is None:
+                pair_blocks = majorant_pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
+            blocks = pair_blocks.to(torch.float64, copy=True)
             if vertex_blocks is not None:
                 blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
             if self._links is not None:

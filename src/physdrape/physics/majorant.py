@@ -19,11 +19,12 @@ from one closed-form PSD majorant of ∇²(E_strain + E_bend), without eigendeco
 - Bending: the Gauss–Newton part k·∇θ∇θᵀ of each hinge (PSD by construction), added to the
   vertex blocks only (smooth coarse patches barely bend).
 
-The per-vertex blocks come from the local-terms kernel, which also sums the force −∇Φ that the
-solver's step starts from (strain, bending, gravity, an external force and the body contact on
-held planes, `LocalTerms`) and the contact's Gauss–Newton blocks: a face's deformation and
-stress, and a hinge's angle gradients, serve its force and its blocks at once, and a step's
-force and stiffness are one launch (`physics.potential.GarmentPotential.local_terms` records it
+The per-vertex blocks (and, at the steps that factorise the coarse space, the pair blocks) come
+from the local-terms kernel, which also sums the force −∇Φ that the solver's step starts from
+(strain, bending, gravity, an external force and the body contact on held planes, `LocalTerms`)
+and the contact's Gauss–Newton blocks: a face's deformation and stress, and a hinge's angle
+gradients, serve its force and its blocks at once, and a step's force and stiffness are one
+launch (`physics.potential.GarmentPotential.local_terms` records it
 on the solver's held planes). The per-element formulas are those of the element and contact
 kernels (`physics.element_kernels`, `physics.contact_kernels`).
 
@@ -44,10 +45,9 @@ from torch import Tensor
 
 from physdrape.physics import contact_kernels, element_kernels
 from physdrape.physics.cloth import Cloth
-from physdrape.threads import disjoint_parts, run_parts
 from physdrape.warp_runtime import defined_once, launch_arg, torch_stream, warp
 
-__all__ = ["LocalTerms", "PairBlocks", "compliance", "pair_blocks", "pair_product", "record_compliance", "record_local_terms",
+__all__ = ["LocalTerms", "compliance", "pair_blocks", "pair_product", "record_compliance", "record_local_terms",
            "vertex_blocks", "vertex_compliance"]
 
 
@@ -134,12 +134,15 @@ def _kernels():
                            with_external: int, corners: wp.array2d(dtype=wp.int32), closest: wp.array(dtype=wp.vec3d),
                            normal: wp.array(dtype=wp.vec3d), with_planes: int, stiffness: wp.float64,
                            margin: wp.float64, band: wp.float64, face_lo: int, num_faces: int, hinge_lo: int,
-                           num_hinges: int, vert_lo: int, num_verts: int, force: wp.array2d(dtype=wp.vec3d),
-                           blocks: wp.array2d(dtype=wp.mat33d), contact: wp.array2d(dtype=wp.mat33d)):
+                           num_hinges: int, vert_lo: int, num_verts: int, pair: wp.array2d(dtype=wp.int32),
+                           with_pairs: int, force: wp.array2d(dtype=wp.vec3d), blocks: wp.array2d(dtype=wp.mat33d),
+                           contact: wp.array2d(dtype=wp.mat33d), pairs: wp.array(dtype=wp.mat33d)):
         """One thread per face (its strain force and blocks, its centroid's contact), per hinge (its
         bending force and Gauss–Newton blocks) and per vertex (gravity, the external force, its own
         contact): the force −∇Φ (`force`), the strain and bending majorant's vertex blocks
-        (`blocks`) and the contact's blocks (`contact`), each summed into the vertices."""
+        (`blocks`) and the contact's blocks (`contact`), each summed into the vertices; with
+        `with_pairs`, also each face's 9 strain blocks summed into its corner pairs' (`pairs`, the
+        pair of corners a, b of face f at pair[f, 3a + b]; block (b, a) = block (a, b)ᵀ)."""
         i = wp.tid()
         if i < num_faces:
             f = face_lo + i
@@ -158,9 +161,25 @@ def _kernels():
             wp.atomic_add(force, 0, a0, f0)
             wp.atomic_add(force, 0, a1, f1)
             wp.atomic_add(force, 0, a2, f2)
-            wp.atomic_add(blocks, 0, a0, diagonal_block(w0, u0, s_abs, fft, m, l, v))
-            wp.atomic_add(blocks, 0, a1, diagonal_block(w1, u1, s_abs, fft, m, l, v))
-            wp.atomic_add(blocks, 0, a2, diagonal_block(w2, u2, s_abs, fft, m, l, v))
+            d0 = diagonal_block(w0, u0, s_abs, fft, m, l, v)
+            d1 = diagonal_block(w1, u1, s_abs, fft, m, l, v)
+            d2 = diagonal_block(w2, u2, s_abs, fft, m, l, v)
+            wp.atomic_add(blocks, 0, a0, d0)
+            wp.atomic_add(blocks, 0, a1, d1)
+            wp.atomic_add(blocks, 0, a2, d2)
+            if with_pairs != 0:
+                b01 = corner_block(w0, u0, w1, u1, s_abs, fft, m, l, v)
+                b02 = corner_block(w0, u0, w2, u2, s_abs, fft, m, l, v)
+                b12 = corner_block(w1, u1, w2, u2, s_abs, fft, m, l, v)
+                wp.atomic_add(pairs, pair[f, 0], d0)
+                wp.atomic_add(pairs, pair[f, 1], b01)
+                wp.atomic_add(pairs, pair[f, 2], b02)
+                wp.atomic_add(pairs, pair[f, 3], wp.transpose(b01))
+                wp.atomic_add(pairs, pair[f, 4], d1)
+                wp.atomic_add(pairs, pair[f, 5], b12)
+                wp.atomic_add(pairs, pair[f, 6], wp.transpose(b02))
+                wp.atomic_add(pairs, pair[f, 7], wp.transpose(b12))
+                wp.atomic_add(pairs, pair[f, 8], d2)
             if with_planes != 0:  # the face's centroid sample: V + f
                 contact_terms(x, corners, closest, normal, stiffness, margin, band, num_verts + f, force, contact)
         elif i < num_faces + num_hinges:
@@ -186,27 +205,6 @@ def _kernels():
                 contact_terms(x, corners, closest, normal, stiffness, margin, band, j, force, contact)
 
     @wp.kernel(enable_backward=False)
-    def strain_pair_kernel(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
-                           rest_inv: wp.array(dtype=wp.mat22d), volume: wp.array(dtype=wp.float64),
-                           mu: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), pair: wp.array2d(dtype=wp.int32),
-                           out: wp.array(dtype=wp.mat33d)):
-        f = wp.tid()
-        m, l, v = mu[f], lam[f], volume[f]
-        w0, w1, w2, u0, u1, u2, s_abs, fft = face_state(x, faces, rest_inv, m, l, f)
-        b01 = corner_block(w0, u0, w1, u1, s_abs, fft, m, l, v)  # block (b, a) = block (a, b)ᵀ
-        b02 = corner_block(w0, u0, w2, u2, s_abs, fft, m, l, v)
-        b12 = corner_block(w1, u1, w2, u2, s_abs, fft, m, l, v)
-        wp.atomic_add(out, pair[f, 0], diagonal_block(w0, u0, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 1], b01)
-        wp.atomic_add(out, pair[f, 2], b02)
-        wp.atomic_add(out, pair[f, 3], wp.transpose(b01))
-        wp.atomic_add(out, pair[f, 4], diagonal_block(w1, u1, s_abs, fft, m, l, v))
-        wp.atomic_add(out, pair[f, 5], b12)
-        wp.atomic_add(out, pair[f, 6], wp.transpose(b02))
-        wp.atomic_add(out, pair[f, 7], wp.transpose(b12))
-        wp.atomic_add(out, pair[f, 8], diagonal_block(w2, u2, s_abs, fft, m, l, v))
-
-    @wp.kernel(enable_backward=False)
     def compliance_kernel(blocks: wp.array(dtype=wp.mat33d), extra: wp.array(dtype=wp.mat33d), with_extra: int,
                           rel: wp.float64, tiny: wp.float64, out: wp.array(dtype=wp.mat33d)):
         """(K + rel·max(tr K, tiny)·I)⁻¹ of each vertex's K = blocks (+ extra)."""
@@ -229,8 +227,8 @@ def _kernels():
         else:
             wp.atomic_add(out, b, wp.transpose(blocks[p]) * v[a])
 
-    return {"wp": wp, "local_terms": local_terms_kernel, "strain_pair": strain_pair_kernel,
-            "compliance": compliance_kernel, "pair_product": pair_product_kernel}
+    return {"wp": wp, "local_terms": local_terms_kernel, "compliance": compliance_kernel,
+            "pair_product": pair_product_kernel}
 
 
 @dataclass(frozen=True)
@@ -245,16 +243,18 @@ class LocalTerms:
     blocks: Tensor
     contact: Tensor
     compliance: Tensor | None = None  # `compliance` of blocks + contact, where asked for
+    pairs: Tensor | None = None  # the strain majorant's pair blocks (P, 3, 3) [N/m], where asked for (`pair_blocks`)
 
 
 def record_local_terms(x: Tensor, cloth: Cloth, out: LocalTerms, part: tuple[int, ...], *, external: Tensor | None,
                        corners: Tensor | None, planes: tuple[Tensor, Tensor] | None, stiffness: float, margin: float,
-                       band: float):
+                       band: float, pair_of_corner: Tensor | None = None):
     """The launch of the local-terms kernel, recorded (`record_cmd`; None for an empty part): x (1,
     V, 3) float64, summed into `out` (zeroed by the caller), over the part's (face lo, hi, hinge
     lo, hi, vertex lo, hi) elements; external (V, 3) float64 or None; the contact samples' corner
     table (`contact.sample_corners`) and held planes (closest points, normals (V + F, 3) float64),
-    or None; stiffness k_c [J/m³], margin ε [m] and the blocks' band [m] (`contact.plane_contact_blocks`).
+    or None; stiffness k_c [J/m³], margin ε [m] and the blocks' band [m] (`contact.plane_contact_blocks`);
+    pair_of_corner (F, 9) int32: also the pair blocks into `out.pairs` (`pair_blocks`), or None.
     The caller keeps the tensors alive while the launch is replayed."""
     kernels = _kernels()
     wp = kernels["wp"]
@@ -273,17 +273,25 @@ def record_local_terms(x: Tensor, cloth: Cloth, out: LocalTerms, part: tuple[int
               launch_arg(idle if external is None else external, wp.vec3d), int(external is not None),
               launch_arg(corners, wp.int32), launch_arg(closest, wp.vec3d), launch_arg(normal, wp.vec3d),
               int(planes is not None), float(stiffness), float(margin), float(band), face_lo, face_hi - face_lo,
-              hinge_lo, hinge_hi - hinge_lo, vert_lo, cloth.num_verts]
+              hinge_lo, hinge_hi - hinge_lo, vert_lo, cloth.num_verts,
+              launch_arg(idle.to(torch.int32) if pair_of_corner is None else pair_of_corner, wp.int32),
+              int(pair_of_corner is not None)]
+    if pair_of_corner is not None and (out.pairs is None or pair_of_corner.shape != (cloth.faces.shape[0], 9)):
+        raise ValueError(f"pair blocks need pair_of_corner ({cloth.faces.shape[0]}, 9) int32 and a pairs buffer")
     outputs = [launch_arg(out.force[None], wp.vec3d), launch_arg(out.blocks[None], wp.mat33d),
-               launch_arg(out.contact[None], wp.mat33d)]
+               launch_arg(out.contact[None], wp.mat33d),
+               launch_arg(idle.reshape(1, 1, 3).expand(1, 3, 3).contiguous() if out.pairs is None else out.pairs,
+                          wp.mat33d)]
     return wp.launch(kernels["local_terms"], dim=dim, device=wp.device_from_torch(x.device), inputs=inputs,
                      outputs=outputs, record_cmd=True)
 
 
-def zero_local_terms(num_verts: int, device: torch.device) -> LocalTerms:
-    """Zeroed float64 buffers of a `LocalTerms`."""
-    return LocalTerms(*(torch.zeros(num_verts, *shape, dtype=torch.float64, device=device)
-                        for shape in ((3,), (3, 3), (3, 3))))
+def zero_local_terms(num_verts: int, device: torch.device, num_pairs: int | None = None) -> LocalTerms:
+    """Zeroed float64 buffers of a `LocalTerms` (with `num_pairs` pair blocks, or none)."""
+    force, blocks, contact = (torch.zeros(num_verts, *shape, dtype=torch.float64, device=device)
+                              for shape in ((3,), (3, 3), (3, 3)))
+    pairs = None if num_pairs is None else torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=device)
+    return LocalTerms(force, blocks, contact, pairs=pairs)
 
 
 @torch.no_grad()
@@ -350,11 +358,22 @@ def pair_blocks(x: Tensor, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int)
 
     pair_of_corner (F, 9) int32, on x's device: for face f and corners a, b, the pair that face
     f's block (a, b) is added to (rows of vertex a, columns of vertex b), entry 3a + b. With
-    ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3). A caller
-    that forms them at many positions keeps a `PairBlocks`.
+    ``arange(9 F)`` the result is every face's 9×9 block, laid out as (F, a, b, 3, 3). The
+    local-terms kernel's (a solver forms them with a step's local terms,
+    `physics.potential.GarmentPotential.local_terms`).
     """
-    blocks = PairBlocks(cloth, pair_of_corner, num_pairs)
-    return blocks(x)
+    if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
+        raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
+                         f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
+    out = zero_local_terms(cloth.num_verts, x.device, num_pairs)
+    x64 = x.detach().to(torch.float64).reshape(1, -1, 3).contiguous()
+    launch = record_local_terms(x64, cloth, out, (0, cloth.faces.shape[0], 0, 0, 0, 0), external=None, corners=None,
+                                planes=None, stiffness=0.0, margin=0.0, band=0.0,
+                                pair_of_corner=pair_of_corner.contiguous())
+    if launch is not None:
+        with torch_stream(x.device):
+            launch.launch()
+    return out.pairs
 
 
 def pair_product(blocks: Tensor, ends: Tensor, v: Tensor) -> Tensor:
@@ -387,49 +406,3 @@ def _pair_product(blocks: Tensor, ends: Tensor, v: Tensor, *, transpose: bool) -
                       inputs=[launch_arg(blocks.detach().contiguous(), wp.mat33d), launch_arg(ends, wp.int32),
                               launch_arg(v, wp.vec3d), int(transpose)], outputs=[launch_arg(out, wp.vec3d)])
     return out
-
-
-class PairBlocks:
-    """`pair_blocks` of one cloth at many positions: the launch (one per part of a packed batch
-    split between CPU threads) recorded once on buffers of its own, replayed at each call.
-
-    Returns a fresh tensor per call (the buffer is copied out)."""
-
-    def __init__(self, cloth: Cloth, pair_of_corner: Tensor, num_pairs: int) -> None:
-        if pair_of_corner.shape != (cloth.faces.shape[0], 9) or pair_of_corner.dtype != torch.int32:
-            raise ValueError(f"pair_of_corner must be int32 of shape ({cloth.faces.shape[0]}, 9), "
-                             f"got {pair_of_corner.dtype} {tuple(pair_of_corner.shape)}")
-        device = cloth.faces.device
-        self.cloth, self.pair_of_corner = cloth, pair_of_corner.contiguous()
-        self._x = torch.zeros(cloth.num_verts, 3, dtype=torch.float64, device=device)
-        self._out = torch.zeros(num_pairs, 3, 3, dtype=torch.float64, device=device)
-        self._launches: dict[int, list] = {}  # per thread count
-
-    def __call__(self, x: Tensor) -> Tensor:
-        """The blocks at positions x (V, 3) [m], (num_pairs, 3, 3) float64."""
-        self._out.zero_()
-        if not self.cloth.faces.shape[0]:
-            return self._out.clone()
-        # a face's pairs are pairs of its garment: the garments' pairs are disjoint, and on the CPU
-        # with several torch threads a packed batch's faces are split between threads
-        threads = torch.get_num_threads() if x.device.type == "cpu" else 1
-        with torch.no_grad():
-            self._x.copy_(x.detach())
-            launches = self._launches.get(threads)
-            if launches is None:
-                launches = self._launches[threads] = [
-                    self._record(lo, hi) for lo, hi in disjoint_parts(element_kernels.kernel_constant(self.cloth.faces),
-                                                                      threads)]
-            with torch_stream(x.device):
-                run_parts(lambda k: launches[k].launch(), [(k,) for k in range(len(launches))], "elements")
-        return self._out.clone()
-
-    def _record(self, lo: int, hi: int):
-        wp = _kernels()["wp"]
-        constant = element_kernels.kernel_constant
-        per_face = [(constant(self.cloth.faces), wp.int32), (constant(self.cloth.rest_inv), wp.mat22d),
-                    (constant(self.cloth.volume), wp.float64), (constant(self.cloth.mu), wp.float64),
-                    (constant(self.cloth.lam), wp.float64), (self.pair_of_corner, wp.int32)]
-        return wp.launch(_kernels()["strain_pair"], dim=hi - lo, device=wp.device_from_torch(self._x.device),
-                         inputs=[launch_arg(self._x, wp.vec3d), *(launch_arg(t[lo:hi], kind) for t, kind in per_face)],
-                         outputs=[launch_arg(self._out, wp.mat33d)], record_cmd=True)

@@ -29,6 +29,8 @@ are disjoint (`physdrape.threads`).
 """
 
 # No `from __future__ import annotations` here: Warp reads the kernels' annotations as objects.
+from dataclasses import replace
+
 import torch
 from torch import Tensor
 
@@ -124,6 +126,7 @@ class GarmentPotential:
         self._corners = sample_corners(cloth.faces, num_verts)
         self._planes: tuple[Tensor, Tensor] | None = None
         self._terms = zero_local_terms(num_verts, device)  # the buffers `local_terms` sums into
+        self._pair_terms: tuple[Tensor, LocalTerms] | None = None  # a pair layout and the same with its pairs
         self._inverse = torch.zeros(num_verts, 3, 3, dtype=torch.float64, device=device)  # and inverts into
         # recorded launches: Φ's per thread count, the local terms' per ("local", thread count), the
         # compliance's per ("compliance", rel, tiny)
@@ -156,31 +159,40 @@ class GarmentPotential:
             held.copy_(plane.detach())
 
     def local_terms(self, x: Tensor, *, extra: Tensor | None = None, rel: float | None = None,
-                    tiny: float = 0.0) -> LocalTerms:
+                    tiny: float = 0.0, pairs: tuple[Tensor, int] | None = None) -> LocalTerms:
         """The force −∇Φ and the stiffness blocks at positions x (V, 3) [m] on the held planes, in
         one launch (`physics.majorant.LocalTerms`, float64): the force of the strain, bending,
         gravity, external and contact terms (the ties' are the caller's: `forces.tie_forces`),
         the majorant's vertex blocks and the contact's blocks, samples within `band` of their
         plane taken at depth ≥ ε (`contact.plane_contact_blocks`), plus `extra` (V, 3, 3) [N/m]
         if given; with `rel`, also the inverses of the vertices' blocks and contact blocks, floored
-        by rel and tiny (`physics.majorant.compliance`), in a second launch. Not differentiated.
+        by rel and tiny (`physics.majorant.compliance`), in a second launch; with `pairs`, the
+        pair layout (pair_of_corner (F, 9) int32, number of pairs) of `physics.majorant.pair_blocks`,
+        also the strain majorant's pair blocks, from the same faces' state. Not differentiated.
         The terms are this potential's buffers, valid until its next `local_terms` call."""
         if tuple(x.shape) != (self.cloth.num_verts, 3):
             raise ValueError(f"x must be the cloth's packed positions ({self.cloth.num_verts}, 3), got {tuple(x.shape)}")
         threads = torch.get_num_threads() if x.device.type == "cpu" else 1
         terms = self._terms
+        if pairs is not None:
+            if self._pair_terms is None or self._pair_terms[0] is not pairs[0]:  # a layout's buffer and launches
+                self._pair_terms = (pairs[0], replace(terms, pairs=torch.zeros(pairs[1], 3, 3, dtype=torch.float64,
+                                                                               device=x.device)))
+                self._launches = {k: v for k, v in self._launches.items() if k[0] != "pairs"}
+            terms = self._pair_terms[1]
         with torch.no_grad():
             self._x[0].copy_(x.detach())
-            for buffer in (terms.force, terms.blocks, terms.contact):
+            for buffer in (terms.force, terms.blocks, terms.contact) + (() if pairs is None else (terms.pairs,)):
                 buffer.zero_()
             with torch_stream(x.device):
-                key = ("local", threads)
+                key = ("local" if pairs is None else "pairs", threads)
                 launches = self._launches.get(key)
                 if launches is None:
                     launches = self._launches[key] = [
                         record_local_terms(self._x, self.cloth, terms, part, external=self._external,
                                            corners=self._corners, planes=self._planes, stiffness=self.stiffness,
-                                           margin=self.margin, band=self.band)
+                                           margin=self.margin, band=self.band,
+                                           pair_of_corner=None if pairs is None else pairs[0])
                         for part in _garment_parts(self.cloth, threads)]
                 run_parts(lambda k: launches[k].launch(), [(k,) for k in range(len(launches)) if launches[k]],
                           "elements")
@@ -195,7 +207,7 @@ class GarmentPotential:
                     if self._launches[key] is not None:
                         self._launches[key].launch()
                     inverse = self._inverse
-            return LocalTerms(terms.force, terms.blocks, terms.contact, inverse)
+            return LocalTerms(terms.force, terms.blocks, terms.contact, inverse, terms.pairs)
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ per garment (G,) [J], float64, at positions x (V, 3) [m]; not differentiated."""
