@@ -264,6 +264,14 @@ def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_find
     pseudo = BodySurface(body.verts, faces, sign_method=SignMethod.PSEUDO_NORMAL)
     wrong = pseudo.query(samples[rows], near=held.face[rows])
     assert ((wrong.normal * want.normal).sum(-1) < 0).sum() > 10
+    # on bodies that have not found their doubtful faces yet, every followed sample is in doubt
+    # (as a query takes it then): the same planes
+    fresh = _overlapping_spheres()
+    assert fresh.found_doubtful_faces() is None and body.found_doubtful_faces() is not None
+    again = follow_planes(x, faces, held.closest, held.normal, held.face, contact_samples(x0, faces), fresh, None,
+                          band=band, min_move=min_move, stiffness=K_C, margin=EPS)
+    for field in ("closest", "normal", "face", "found_at", "change"):
+        assert torch.equal(getattr(again, field), getattr(out, field)), field
     # with the held query's bound, the samples in doubt that cannot have crossed the surface keep
     # their side without a winding number: the same planes from fewer winding numbers
     asked = []

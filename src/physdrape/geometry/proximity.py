@@ -400,6 +400,11 @@ class BodySurface:
             inside=inside.reshape(lead),
         )
 
+    def found_doubtful_faces(self) -> Tensor | None:
+        """The doubtful faces (B, Fb) bool where this surface has found them already (the same
+        tensor until `update`), else None (not yet, or the pseudo-normal sign only)."""
+        return self._doubtful if self.sign_method is SignMethod.WINDING_NUMBER else None
+
     @torch.no_grad()
     def in_doubt(self, face: Tensor, body: Tensor) -> Tensor:
         """Whether the pseudo-normal sign is in doubt (`query` takes the winding number) at points

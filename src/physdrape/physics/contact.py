@@ -29,6 +29,7 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.closest_point import WALK_MOVES
+from physdrape.geometry.proximity import SignMethod
 from physdrape.physics import contact_kernels
 from physdrape.physics.element_kernels import run_kernel
 from physdrape.tensor_memo import TensorMemo
@@ -148,6 +149,13 @@ class PlaneFollower:
         self._x = torch.zeros(1, num_verts, 3, dtype=torch.float64, device=device)
         self.closest, self.normal, self.face, self.found_at = vec3(), vec3(), scalar(torch.int32), vec3()
         self._before, self._change, self._followed = scalar(torch.float64), scalar(torch.float64), scalar(torch.int32)
+        # the samples whose sign is in doubt, flagged by the kernel: at the bodies' doubtful faces
+        # where found already (the flags hold while those are the bodies' doubtful faces), at every
+        # followed sample before, none with the pseudo-normal sign alone
+        self._doubtful = bodies.found_doubtful_faces()
+        doubt_mode = 1 if self._doubtful is not None else (2 if bodies.sign_method is SignMethod.WINDING_NUMBER else 0)
+        doubtful = (torch.zeros(1, 1, dtype=torch.int32, device=device) if self._doubtful is None
+                    else self._doubtful.to(device=device, dtype=torch.int32).contiguous())
         self._launch = None
         if num_samples:
             wp = warp()
@@ -158,7 +166,8 @@ class PlaneFollower:
                     inputs=[launch_arg(self._x, vec), launch_arg(sample_corners(faces, num_verts), i32),
                             launch_arg(self.closest, vec), launch_arg(self.normal, vec), launch_arg(self.face, i32),
                             launch_arg(self.found_at, vec), launch_arg(self.body, i32), float(band), float(min_move),
-                            self.stiffness, self.margin, *bodies.walk_arrays().launch_args(wp, WALK_MOVES)],
+                            self.stiffness, self.margin, *bodies.walk_arrays().launch_args(wp, WALK_MOVES),
+                            launch_arg(doubtful, i32), doubt_mode],
                     outputs=[launch_arg(t, kind) for t, kind in
                              zip((self._before, self._change, self._followed), (f64, f64, i32))],
                     record_cmd=True)
@@ -184,7 +193,8 @@ class PlaneFollower:
             with torch_stream(x.device):
                 self._launch.launch()
         change, followed = self._change, self._followed
-        rows = torch.nonzero(followed)[:, 0]
+        flagged = self._doubtful is None or self.bodies.found_doubtful_faces() is self._doubtful
+        rows = torch.nonzero(followed >= 8 if flagged else followed)[:, 0]
         if rows.numel():  # the winding number's sign where it is in doubt, as a query takes it
             flags = followed[rows]
             x64 = self._x[0]

@@ -124,6 +124,7 @@ def kernels() -> dict:
                       rings: wp.array2d(dtype=wp.int32), max_moves: wp.int32,
                       face_normals: wp.array2d(dtype=wp.vec3d), edge_normals: wp.array3d(dtype=wp.vec3d),
                       vertex_normals: wp.array2d(dtype=wp.vec3d), near_tol: wp.float64,
+                      doubtful: wp.array2d(dtype=wp.int32), doubt_mode: int,
                       before: wp.array(dtype=wp.float64), change: wp.array(dtype=wp.float64),
                       followed: wp.array(dtype=wp.int32)):
         """A sample within `band` of its plane (and, with min_move > 0, moved farther than that
@@ -131,7 +132,9 @@ def kernels() -> dict:
         there, in place (the closest point and the normal by the pseudo-normal's sign, as
         `BodySurface.query` finds them before its winding-number check; `found_at` its position);
         `change` is its penalty on the new plane minus that on the old one. The others keep theirs
-        (change 0, followed 0). `before`: each sample's distance to its old plane."""
+        (change 0, followed 0). `before`: each sample's distance to its old plane. A followed
+        sample's flags: 2 inside by the pseudo-normal's sign, 4 on the surface, 8 where that sign
+        is in doubt: at a face flagged in `doubtful` (doubt_mode 1), at any face (2), or never (0)."""
         s = wp.tid()
         point = sample_point(x, corners, 0, s)
         d_before = wp.dot(point - closest[s], normal[s])
@@ -149,7 +152,13 @@ def kernels() -> dict:
             face[s] = f
             found_at[s] = point
             change[s] = penalty(d, stiffness, margin) - penalty(d_before, stiffness, margin)
-            followed[s] = 1 + 2 * flags  # 2: inside by the pseudo-normal's sign, 4: on the surface
+            doubt = 0
+            if doubt_mode == 2:
+                doubt = 8
+            elif doubt_mode == 1:  # noqa: SIM102  (nested: Warp evaluates both sides of an `and`)
+                if doubtful[b, f] != 0:
+                    doubt = 8
+            followed[s] = 1 + 2 * flags + doubt
         else:
             change[s] = f64(0.0)
             followed[s] = 0
