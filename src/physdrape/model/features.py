@@ -8,6 +8,7 @@ from torch import Tensor
 from physdrape.geometry.garment import GarmentBatch, vertex_normals
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.forces import internal_forces
+from physdrape.tensor_memo import IdentityMemo
 
 #: Material inputs are logged after this floor (λ may be 0 for a fabric without area stiffness).
 MATERIAL_FLOOR = 1e-12
@@ -36,12 +37,27 @@ def edge_features(x: Tensor, garments: GarmentBatch, edge_index: Tensor | None =
         edge_index: (2, E') row 0 = sender; default the mesh's bidirectional edges.
         level: (E',) level of each edge (0 = mesh edge); needed when levels > 0.
     """
-    sender, receiver = garments.edge_index if edge_index is None else edge_index
+    edge_index = garments.edge_index if edge_index is None else edge_index
+    if levels and level is None:
+        raise ValueError("edge_features with levels > 0 needs the level of every edge")
+    sender, receiver = edge_index
     current = x[receiver] - x[sender]
-    rest = (garments.rest[receiver] - garments.rest[sender]).to(x.dtype)
-    parts = [current, current.norm(dim=-1, keepdim=True), rest, rest.norm(dim=-1, keepdim=True)]
+    constant = _CONSTANT_COLUMNS.get((garments, edge_index) + ((level,) if levels else ()), (levels, x.dtype),
+                                     lambda: _constant_columns(garments, edge_index, level, levels, x.dtype))
+    return torch.cat([current, current.norm(dim=-1, keepdim=True), constant], dim=-1)
+
+
+def _constant_columns(garments: GarmentBatch, edge_index: Tensor, level: Tensor | None, levels: int,
+                      dtype: torch.dtype) -> Tensor:
+    """The edge features that do not depend on the positions: x⁰_ij, l⁰_ij and the level's one-hot."""
+    sender, receiver = edge_index
+    rest = (garments.rest[receiver] - garments.rest[sender]).to(dtype)
+    parts = [rest, rest.norm(dim=-1, keepdim=True)]
     if levels:
-        if level is None:
-            raise ValueError("edge_features with levels > 0 needs the level of every edge")
-        parts.append(torch.nn.functional.one_hot(level, levels + 1).to(x.dtype))
+        parts.append(torch.nn.functional.one_hot(level, levels + 1).to(dtype))
     return torch.cat(parts, dim=-1)
+
+
+#: The position-free edge columns of a batch's graph (formed once per batch and graph: a drape of
+#: the same garments packs the same batch and graph objects again).
+_CONSTANT_COLUMNS = IdentityMemo(16)
