@@ -15,6 +15,23 @@ def anny_body():
     return get_anny_body("anny")
 
 
+@pytest.fixture
+def winding_searches(monkeypatch):
+    """The sizes of the body BVHs' winding-number searches (`BodyBVH.closest_faces(winding=True)`)
+    made during the test, in order (clear it where the count should start)."""
+    from physdrape.geometry.body_bvh import BodyBVH
+
+    asked, search = [], BodyBVH.closest_faces
+
+    def counting(self, points, body, **kwargs):
+        if kwargs.get("winding"):
+            asked.append(len(points))
+        return search(self, points, body, **kwargs)
+
+    monkeypatch.setattr(BodyBVH, "closest_faces", counting)
+    return asked
+
+
 @pytest.fixture(scope="session")
 def anny_cmu_body():
     """The `AnnyBody` on Anny's 31-bone ``cmu_mb`` rig (the BVH retarget target)."""

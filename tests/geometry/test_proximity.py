@@ -123,6 +123,15 @@ def brute_force_winding_number(x: torch.Tensor, verts: torch.Tensor, faces: torc
     return (2 * torch.atan2(num, den)).sum(-1) / (4 * math.pi)
 
 
+def overlapping_spheres():
+    """Two spheres in one mesh, radii 15 and 10 cm, centres 20 cm apart (a limb pressed into the
+    torso): verts (V, 3) float64, faces (F, 3)."""
+    a_verts, a_faces = icosphere(3, 0.15)
+    b_verts, b_faces = icosphere(3, 0.10)
+    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
+    return verts, torch.cat([a_faces, b_faces + len(a_verts)])
+
+
 def sample_points(verts, faces, n_near: int, n_far: int, seed: int, offset: float = 0.03):
     """Points near the surface (random face point + normal offset) and far (in a loose box)."""
     g = torch.Generator().manual_seed(seed)
@@ -240,10 +249,7 @@ def test_interpenetrating_parts_inside_follows_winding_number():
     """Two overlapping spheres in one mesh (like posed limbs pressed into the torso): the
     pseudo-normal sign is wrong inside the overlap, so the winding number decides there; away
     from it the surface is clean and no winding number is evaluated."""
-    a_verts, a_faces = icosphere(3, 0.15)
-    b_verts, b_faces = icosphere(3, 0.10)
-    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
-    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    verts, faces = overlapping_spheres()
     x = sample_points(verts, faces, 1500, 500, seed=4, offset=0.06)
     surface = BodySurface(verts, faces)
     few = surface.query(x[:100])  # fewer points than body vertices: the winding number of each
@@ -271,10 +277,7 @@ def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_number
     every probe gets its winding number)."""
     from physdrape.geometry.doubtful_faces import DOUBT_REACH, ENTERING, PROBE_OFFSET
 
-    a_verts, a_faces = icosphere(3, 0.15)
-    b_verts, b_faces = icosphere(3, 0.10)
-    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
-    closed = torch.cat([a_faces, b_faces + len(a_verts)])
+    verts, closed = overlapping_spheres()
     holed = closed[verts[closed].mean(1)[:, 1] < 0.14]  # a hole in the big sphere's cap: no ray filter
 
     def by_winding_numbers_of_all(faces):
@@ -325,44 +328,30 @@ def test_probes_whose_rays_enter_another_part_get_no_winding_number():
 
 
 def test_inside_is_the_winding_number_inside_flag_of_query():
-    a_verts, a_faces = icosphere(3, 0.15)
-    b_verts, b_faces = icosphere(3, 0.10)
-    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
-    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    verts, faces = overlapping_spheres()
     x = sample_points(verts, faces, 300, 100, seed=6, offset=0.06)
     assert torch.equal(BodySurface(verts, faces).inside(x), BodySurface(verts, faces).query(x).inside)
     with pytest.raises(ValueError, match="WINDING_NUMBER"):
         BodySurface(verts, faces, sign_method=SignMethod.PSEUDO_NORMAL).inside(x)
 
 
-def test_a_bound_decides_the_side_of_points_in_doubt_that_cannot_have_crossed(monkeypatch):
+def test_a_bound_decides_the_side_of_points_in_doubt_that_cannot_have_crossed(winding_searches):
     """Overlapping spheres (points near the overlap are in doubt): queried again after a small
     move with the first query's bound, the points in doubt that moved less than their distance
     get no winding number, and every field is the one the query without the bound gives."""
-    from physdrape.geometry.body_bvh import BodyBVH
     from physdrape.geometry.distance_bound import DistanceBound
 
-    a_verts, a_faces = icosphere(3, 0.15)
-    b_verts, b_faces = icosphere(3, 0.10)
-    verts = torch.cat([a_verts, b_verts + torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)])
-    faces = torch.cat([a_faces, b_faces + len(a_verts)])
+    verts, faces = overlapping_spheres()
     x = sample_points(verts, faces, 1500, 500, seed=8, offset=0.02)
     surface = BodySurface(verts, faces)
     surface.doubtful_faces()
     bound = DistanceBound.of(x, surface.query(x).signed_distance)
     moved = x + 1e-3 * torch.nn.functional.normalize(torch.randn(x.shape, generator=torch.Generator().manual_seed(2),
                                                                  dtype=torch.float64), dim=-1)
-    asked = []
-    search = BodyBVH.closest_faces
-
-    def counting(self, points, body, **kwargs):
-        if kwargs.get("winding"):
-            asked.append(len(points))
-        return search(self, points, body, **kwargs)
-
-    monkeypatch.setattr(BodyBVH, "closest_faces", counting)
+    winding_searches.clear()
     plain = surface.query(moved)
     with_bound = surface.query(moved, bound=bound)
+    asked = winding_searches
     assert len(asked) == 2 and 0 < asked[1] < asked[0] // 4  # most points in doubt are certified
     for field in ("closest", "normal", "signed_distance", "face", "inside"):
         assert torch.equal(getattr(plain, field), getattr(with_bound, field)), field

@@ -9,7 +9,6 @@ import pytest
 import torch
 import trimesh
 
-from physdrape.geometry.body_bvh import BodyBVH
 from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.primitives import open_cylinder
@@ -226,7 +225,7 @@ def _overlapping_spheres() -> BodySurface:
 
 
 @pytest.mark.parametrize("min_move", [0.0, 1.5e-3])
-def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_finds(min_move, monkeypatch):
+def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_finds(min_move, winding_searches):
     """`follow_planes` gives the samples within the band of their held planes (and moved farther
     than min_move since found_at) the closest point, normal and face of `BodySurface.query` walking
     from their held faces, the winding number's sign included where it is in doubt; the others
@@ -274,15 +273,8 @@ def test_followed_planes_are_the_planes_a_query_walking_from_the_held_faces_find
         assert torch.equal(getattr(again, field), getattr(out, field)), field
     # with the held query's bound, the samples in doubt that cannot have crossed the surface keep
     # their side without a winding number: the same planes from fewer winding numbers
-    asked = []
-    search = BodyBVH.closest_faces
-
-    def counting(self, points, body_index, **kwargs):
-        if kwargs.get("winding"):
-            asked.append(len(points))
-        return search(self, points, body_index, **kwargs)
-
-    monkeypatch.setattr(BodyBVH, "closest_faces", counting)
+    winding_searches.clear()
+    asked = winding_searches
     follower = PlaneFollower(faces, x.shape[0], body, None, band=band, min_move=min_move, stiffness=K_C, margin=EPS,
                              device=x.device)
     for bound in (None, DistanceBound.of(contact_samples(x0, faces), held.signed_distance)):
