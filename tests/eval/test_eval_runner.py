@@ -85,6 +85,9 @@ def test_both_tables_have_all_rows_with_finite_numbers(results, tiny):
             assert math.isfinite(summary[name]), (key, name)
     for start in ("x_init", "skinned"):  # context rows: PhysDrape's start and the oracle's
         assert math.isfinite(data[start]["summary"]["strain"]), start
+    per_garment = {"strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative",
+                   "energy_total", "wall_s", "model_wall_s"}
+    assert set(data["rows"]["physdrape_t15"]["per_instance"][0]) == per_garment  # a drape's numbers, no per-vertex field
     md = render_markdown(results)
     assert "## Table 1" in md and "## Table 2" in md and "Skinned (the oracle's start" in md
     for spec in MAIN_ROWS + ABLATION_ROWS:

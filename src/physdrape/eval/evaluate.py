@@ -137,7 +137,7 @@ class Contact(NamedTuple):
 
 def _metrics(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> dict[str, float]:
     m = drape_metrics(x, batch.garments, batch.bodies, batch.body_index, cloth=batch.cloth)
-    out = {name: float(getattr(m, name)[0]) for name in m.__dataclass_fields__}
+    out = {name: values[0] for name, values in m.as_dict().items()}
     out["energy_total"] = float(total_energy(x, batch, contact)[0])
     return out
 
