@@ -228,6 +228,7 @@ def test_local_terms_with_pair_blocks_are_the_same_terms_plus_the_majorants_pair
     potential = GarmentPotential(cloth, external=external, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
     potential.hold(planes)
     layout = CoarseSpace(cloth).pair_layout
+    potential(x)  # Φ's launch recorded first: it stays beside the pair layout's
     before = torch.get_num_threads()
     try:
         for threads in (1, 2):
@@ -241,6 +242,9 @@ def test_local_terms_with_pair_blocks_are_the_same_terms_plus_the_majorants_pair
             assert with_pairs.pairs.shape == (layout[1], 3, 3) and want.abs().amax() > 0
             torch.testing.assert_close(with_pairs.pairs, want, rtol=1e-12, atol=1e-12 * float(want.abs().amax()))
             assert potential.local_terms(x, rel=1e-6).pairs is None
+        other = CoarseSpace(cloth, levels=1).pair_layout  # another layout: its own buffer and launches
+        torch.testing.assert_close(potential.local_terms(x, pairs=other).pairs, pair_blocks(x, cloth, *other),
+                                   rtol=1e-12, atol=1e-12 * float(want.abs().amax()))
     finally:
         torch.set_num_threads(before)
 

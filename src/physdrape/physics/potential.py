@@ -128,8 +128,8 @@ class GarmentPotential:
         self._terms = zero_local_terms(num_verts, device)  # the buffers `local_terms` sums into
         self._pair_terms: tuple[Tensor, LocalTerms] | None = None  # a pair layout and the same with its pairs
         self._inverse = torch.zeros(num_verts, 3, 3, dtype=torch.float64, device=device)  # and inverts into
-        # recorded launches: Φ's per thread count, the local terms' per ("local", thread count), the
-        # compliance's per ("compliance", rel, tiny)
+        # recorded launches: Φ's per thread count, the local terms' per ("local", thread count) and
+        # with a pair layout's blocks per ("pairs", thread count), the compliance's per ("compliance", rel, tiny)
         self._launches: dict = {}
 
     def drop_external(self) -> None:
@@ -178,7 +178,7 @@ class GarmentPotential:
             if self._pair_terms is None or self._pair_terms[0] is not pairs[0]:  # a layout's buffer and launches
                 self._pair_terms = (pairs[0], replace(terms, pairs=torch.zeros(pairs[1], 3, 3, dtype=torch.float64,
                                                                                device=x.device)))
-                self._launches = {k: v for k, v in self._launches.items() if k[0] != "pairs"}
+                self._launches = {k: v for k, v in self._launches.items() if not (isinstance(k, tuple) and k[0] == "pairs")}
             terms = self._pair_terms[1]
         with torch.no_grad():
             self._x[0].copy_(x.detach())
