@@ -78,6 +78,7 @@ def doubtful_faces(verts: Tensor, faces: Tensor, vertex_normals: Tensor, border:
         centres = torch.nonzero(buried[b])[:, 0]
         for start in range(0, centres.shape[0], 1024):  # bounded memory: (Vb, 1024) distances
             some = centres[start:start + 1024]
-            within = torch.cdist(verts[b], verts[b, some]) <= DOUBT_REACH * (reach[b][:, None] + reach[b, some][None, :])
+            radius = DOUBT_REACH * (reach[b][:, None] + reach[b, some][None, :])  # (Vb, k)
+            within = torch.cdist(verts[b], verts[b, some]) <= radius
             near[b] |= within.any(dim=1)
     return near[:, faces].any(dim=-1)

@@ -29,8 +29,9 @@ a garment's topology and links fix a sparse Galerkin operator G (coarse blocks �
 once and cached, and each `factor` forms Pᵀ K P as the product G · K in float64, one launch for
 all the batch's garments of that topology, written straight into each garment's coarse matrix
 (`physics.galerkin`), which is then factorised by Cholesky (`physics.coarse_factor`). A patch
-couples only to the patches near it, and the patches are numbered (reverse Cuthill–McKee) so
-that those couplings lie in a band about the diagonal: on the CPU the matrix is assembled and factorised in band storage
+couples only to the patches near it, and the patches are numbered (the narrowest of several
+reverse Cuthill–McKee orderings, `topology.narrow_band_order`) so that those couplings lie in a
+band about the diagonal: on the CPU the matrix is assembled and factorised in band storage
 (LAPACK's pbtrf and pbtrs: for a band w wide, n w² operations instead of n³/3), on CUDA dense
 (cuSOLVER), where a few hundred unknowns cost little either way and the garments of one topology
 (a batch of one garment on many bodies) are factorised and solved together, in one batched call
@@ -293,7 +294,8 @@ class _BatchStructure:
             dofs = np.array([coarse_ranges[g][0] for g in indices], dtype=np.int64)[:, None] + np.arange(n)
             entries = None if banded else torch.from_numpy(
                 np.array([matrix_offsets[g] for g in indices], dtype=np.int64)[:, None] + np.arange(n * n)).to(device)
-            groups.append(_Group(GalerkinProduct(garment.operator, np.array([pair_starts[g] for g in indices]), destination, device),
+            starts = np.array([pair_starts[g] for g in indices])
+            groups.append(_Group(GalerkinProduct(garment.operator, starts, destination, device),
                                  torch.from_numpy(dofs).to(device), entries))
         prolong = sp.block_diag([g.prolong for g in garments], format="csr")  # (V, patches)
         return _BatchStructure(

@@ -176,7 +176,8 @@ class PlaneFollower:
     def hold(self, closest: Tensor, normal: Tensor, face: Tensor, found_at: Tensor) -> None:
         """Hold these planes (closest points, normals, faces and where each sample was when its
         plane was found, (V + F, ...) each; a full query's)."""
-        for held, given in zip((self.closest, self.normal, self.face, self.found_at), (closest, normal, face, found_at)):
+        for held, given in zip((self.closest, self.normal, self.face, self.found_at),
+                               (closest, normal, face, found_at)):
             held.copy_(given.detach())
 
     @torch.no_grad()
@@ -206,7 +207,8 @@ class PlaneFollower:
                 return bound.select(rows[doubt]).sign(contact_samples(x64, self.faces)[rows[doubt]])
 
             sign = self.bodies.winding_sign(points32, self.body[rows], self.face[rows].to(torch.int64),
-                                            (flags & 2).bool(), (flags & 4).bool(), known=None if bound is None else known)
+                                            (flags & 2).bool(), (flags & 4).bool(),
+                                            known=None if bound is None else known)
             if sign is not None:
                 flipped = rows[sign[0][sign[2] < 0]]
                 if flipped.numel():

@@ -178,7 +178,8 @@ class GarmentPotential:
             if self._pair_terms is None or self._pair_terms[0] is not pairs[0]:  # a layout's buffer and launches
                 self._pair_terms = (pairs[0], replace(terms, pairs=torch.zeros(pairs[1], 3, 3, dtype=torch.float64,
                                                                                device=x.device)))
-                self._launches = {k: v for k, v in self._launches.items() if not (isinstance(k, tuple) and k[0] == "pairs")}
+                self._launches = {k: v for k, v in self._launches.items()
+                                  if not (isinstance(k, tuple) and k[0] == "pairs")}
             terms = self._pair_terms[1]
         with torch.no_grad():
             self._x[0].copy_(x.detach())
