@@ -57,7 +57,7 @@ def _kernels():
     wp = warp()
     f64 = wp.float64
     shared = element_kernels._kernels()  # the element kernels' F, G, S, forces and ∇θ
-    deformation_columns, green_strain, stress = shared["deformation_columns"], shared["green_strain"], shared["stress"]
+    green_strain, stress = shared["green_strain"], shared["stress"]
     face_columns, strain_corner_forces = shared["face_columns"], shared["strain_corner_forces"]
     hinge_gradients = shared["hinge_gradients"]
     contact = contact_kernels.kernels()  # a sample's distance, force and block on its held plane
@@ -101,16 +101,6 @@ def _kernels():
         u1 = c0 * w1[0] + c1 * w1[1]
         u2 = c0 * w2[0] + c1 * w2[1]
         return w0, w1, w2, u0, u1, u2, abs_part(s), wp.outer(c0, c0) + wp.outer(c1, c1)
-
-    @wp.func
-    def face_state(x: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
-                   rest_inv: wp.array(dtype=wp.mat22d), mu: wp.float64, lam: wp.float64, f: int):
-        """`face_terms` of face f."""
-        r = rest_inv[f]
-        c0, c1 = deformation_columns(x[faces[f, 0]], x[faces[f, 1]], x[faces[f, 2]], r)  # the columns of F
-        g00, g01, g11 = green_strain(c0, c1)
-        s00, s01, s11 = stress(g00, g01, g11, mu, lam)
-        return face_terms(c0, c1, wp.mat22d(s00, s01, s01, s11), r)
 
     @wp.func
     def contact_terms(x: wp.array2d(dtype=wp.vec3d), corners: wp.array2d(dtype=wp.int32),
