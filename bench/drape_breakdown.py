@@ -3,8 +3,9 @@
     .venv/bin/python bench/drape_breakdown.py [--repeats 9] [--device cpu|cuda] [--out results/drape_breakdown]
 
 The bundled model at T = 15 on one torch thread, as `bench/bench_drape.py` times it end to end:
-the same pose again (the body posed and its surface built before), and a new pose per call (drawn
-by the seeded sampler beforehand and passed as an array). This script wraps the methods that make
+the same pose again (the body posed and its surface built before), a new pose per call (drawn
+by the seeded sampler beforehand and passed as an array), and a batch of 8 poses (the same 8 at
+every call, as in `bench_drape.py`; its times and calls per garment). This script wraps the methods that make
 up a drape with timers (the product code is not changed) and reports per drape the median time
 spent in each, with how often it ran:
 
@@ -73,15 +74,18 @@ class Timers:
 
     def wrap(self, owner, attribute: str, label: str) -> None:
         original = getattr(owner, attribute)
+        depth = [0]  # a method that calls itself (the network, piece by piece) is timed at the outer call
 
         def timed(*args, **kwargs):
-            if not self.active:
+            if not self.active or depth[0]:
                 return original(*args, **kwargs)
             self.sync()
             start = time.perf_counter()
+            depth[0] += 1
             try:
                 return original(*args, **kwargs)
             finally:
+                depth[0] -= 1
                 self.sync()
                 self.seconds[label] += time.perf_counter() - start
                 self.calls[label] += 1
@@ -136,24 +140,34 @@ def measure(repeats: int, device: str = "cpu") -> dict[str, list[dict]]:
     draper = Draper(device=device)
     draper.drape("default")  # fits the skinning transfer, poses the default body
     poses = [draper.poses(f"random:{1000 + k}")[0].pose[0] for k in range(repeats + 1)]
+    eight = [draper.poses(f"random:{k}")[0].pose[0] for k in range(8)]  # bench_drape.py's batch
     draper.drape("default", pose=poses[0])  # a first new pose outside the timing
-    out: dict[str, list[dict]] = {"same_pose": [], "new_pose": []}
+    draper.drape("default", pose=eight, batch_size=8)  # the batch's bodies posed outside the timing
+    out: dict[str, list[dict]] = {"same_pose": [], "new_pose": [], "batch8": []}
     for k in range(repeats):
-        for row in ("same_pose", "new_pose"):
+        for row, rows in out.items():
             timers.active = True
             start = time.perf_counter()
-            [res] = draper.drape("default") if row == "same_pose" else draper.drape("default", pose=poses[k + 1])
+            if row == "same_pose":
+                results = draper.drape("default")
+            elif row == "new_pose":
+                results = draper.drape("default", pose=poses[k + 1])
+            else:
+                results = draper.drape("default", pose=eight, batch_size=8)
             wall = time.perf_counter() - start
             timers.active = False
             seconds, calls = timers.take()
-            seconds.update({"init phase": res.timings["init_s"], "metrics": res.timings["metrics_s"], "drape": wall})
-            out[row].append({"seconds": seconds, "calls": calls})
+            timings = results[0].timings  # a batch's phases, the same in each of its results
+            seconds.update({"init phase": timings["init_s"], "metrics": timings["metrics_s"], "drape": wall})
+            n = len(results)  # per garment
+            rows.append({"seconds": {key: value / n for key, value in seconds.items()},
+                         "calls": {key: value / n for key, value in calls.items()}})
     return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=9, help="timed drapes per row (the two rows alternate)")
+    parser.add_argument("--repeats", type=int, default=9, help="timed drapes per column (the columns alternate)")
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--out", default="results/drape_breakdown")
     args = parser.parse_args()
@@ -176,10 +190,11 @@ def main() -> None:
 
     def calls(row: str, key: str) -> str:
         if key in ("drape", "init phase", "metrics"):  # one phase of each drape
-            return "1"
+            return "1" if row != "batch8" else "1/8"
         if key == "solver, the rest":
             return "–"
-        return f"{statistics.median(s['calls'].get(key, 0) for s in samples[row]):.0f}"
+        median = statistics.median(s['calls'].get(key, 0) for s in samples[row])
+        return f"{median:.0f}" if float(median).is_integer() else f"{median:.2f}"
 
     medians = {row: {key: median_ms(row, key) for _, key, _ in labels} for row in samples}
     solver = [label for label, *_ in PHASES].index("stretching solver")
@@ -194,14 +209,16 @@ def main() -> None:
     info = provenance()
     where = "one thread" if args.device == "cpu" else f"one thread, the drape on {args.device}"
     lines = [f"# Where a warm drape's time goes (bundled model, T = 15, {where})", "", *source_lines(command, info),
-             (f"Default T-shirt; medians over {args.repeats} drapes per row, the rows alternating; load average at "
-              f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}. Indented rows are part of the unindented row above them; "
-              "calls: per drape."), "",
-             "| phase | same pose [ms] | calls | new pose [ms] | calls |", "|---|---:|---:|---:|---:|"]
+             (f"Default T-shirt; medians over {args.repeats} drapes per column, the columns alternating; load average "
+              f"at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}. Indented rows are part of the unindented row above "
+              "them; calls: per drape. The batch of 8 poses (one `drape` call, the bodies posed before): its time and "
+              "calls per garment (the init phase and the metrics are one each per batch)."), "",
+             "| phase | same pose [ms] | calls | new pose [ms] | calls | batch of 8, per garment [ms] | calls |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
     for label, key, indent in labels:
         name = ("&nbsp;&nbsp;&nbsp;&nbsp;" * indent) + label
-        lines.append(f"| {name} | {medians['same_pose'][key]:.1f} | {calls('same_pose', key)} | "
-                     f"{medians['new_pose'][key]:.1f} | {calls('new_pose', key)} |")
+        lines.append(f"| {name} | " + " | ".join(f"{medians[row][key]:.1f} | {calls(row, key)}"
+                                                 for row in ("same_pose", "new_pose", "batch8")) + " |")
     write_report(args.out, lines, {"command": command, "provenance": info, "device": args.device, "load_average_end": load,
                                    "repeats": args.repeats, "medians_ms": medians, "samples": samples})
 
