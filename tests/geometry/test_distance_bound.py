@@ -69,3 +69,17 @@ def test_update_and_part_replace_and_cut_rows():
     torch.testing.assert_close(newer.select(torch.tensor([3, 0])).distance, torch.tensor([-3.0, 0.0], dtype=torch.float64))
     with pytest.raises(ValueError, match="shape"):
         part.lower(torch.zeros(3, 3))
+
+
+def test_query_within_asks_only_the_rows_the_bound_leaves_within_the_threshold(sphere):
+    gen = torch.Generator().manual_seed(2)
+    points = torch.nn.functional.normalize(torch.randn(300, 3, generator=gen, dtype=torch.float64), dim=-1) * (
+        0.09 + 0.05 * torch.rand(300, 1, generator=gen, dtype=torch.float64))
+    body = torch.zeros(300, dtype=torch.int64)
+    bound = DistanceBound.of(points, sphere.query(points).signed_distance)
+    moved = points + 1e-3
+    rows, query = sphere.query_within(moved, 5e-3, body_index=body, bound=bound)
+    assert torch.equal(rows, bound.rows_below(moved, 5e-3)) and 0 < len(rows) < 300
+    assert torch.equal(query.signed_distance, sphere.query(moved[rows]).signed_distance)
+    every, plain = sphere.query_within(moved, 5e-3, body_index=body, bound=None)
+    assert every is None and torch.equal(plain.signed_distance, sphere.query(moved).signed_distance)

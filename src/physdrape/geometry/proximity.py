@@ -400,6 +400,17 @@ class BodySurface:
             inside=inside.reshape(lead),
         )
 
+    def query_within(self, points: Tensor, threshold: float, *, body_index: Tensor,
+                     bound: DistanceBound | None) -> tuple[Tensor | None, SurfaceQuery]:
+        """`query` of those of the packed points (N, 3) (bodies `body_index` (N,)) that may lie
+        within `threshold` [m] of the body by `bound`, a `DistanceBound` of these points row by
+        row (whose sides also decide the points in doubt that cannot have crossed the surface):
+        the rows asked (int64; None without a bound: every point) and their query."""
+        if bound is None:
+            return None, self.query(points, body_index=body_index)
+        rows = bound.rows_below(points, threshold)
+        return rows, self.query(points[rows], body_index=body_index[rows], bound=bound.select(rows))
+
     def found_doubtful_faces(self) -> Tensor | None:
         """The doubtful faces (B, Fb) bool where this surface has found them already (the same
         tensor until `update`), else None (not yet, or the pseudo-normal sign only)."""

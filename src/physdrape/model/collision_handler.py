@@ -71,10 +71,8 @@ class CollisionHandler(nn.Module):
         before = x
         num_verts = x.shape[0]
         delta = self.delta.to(x.dtype) if delta is None else delta
-        verts_bound = None if bound is None else bound.part(0, num_verts)
-        rows = None if bound is None else verts_bound.rows_below(x, self.margin)
-        query = bodies.query(x if rows is None else x[rows], body_index=body_index if rows is None else body_index[rows],
-                             bound=None if rows is None else verts_bound.select(rows))
+        rows, query = bodies.query_within(x, self.margin, body_index=body_index,
+                                          bound=None if bound is None else bound.part(0, num_verts))
         push = (delta * (self.margin - query.signed_distance).clamp_min(0.0))[:, None] * query.normal
         x = x + push if rows is None else x.index_add(0, rows, push)
         if faces is not None and self.centroid_margin > 0:
@@ -87,10 +85,9 @@ class CollisionHandler(nn.Module):
     def _push_centroids(self, x: Tensor, faces: Tensor, bodies: BodySurface, body_index: Tensor,
                         bound: DistanceBound | None) -> Tensor:
         centroids, owner = x[faces].mean(dim=1), body_index[faces[:, 0]]
-        rows = None if bound is None else bound.rows_below(centroids, self.centroid_margin)
+        rows, query = bodies.query_within(centroids, self.centroid_margin, body_index=owner, bound=bound)
         if rows is not None:
-            centroids, owner, faces, bound = centroids[rows], owner[rows], faces[rows], bound.select(rows)
-        query = bodies.query(centroids, body_index=owner, bound=bound)
+            faces = faces[rows]
         push = (self.centroid_margin - query.signed_distance).clamp_min(0.0)
         hit = push > 0
         if not bool(hit.any()):

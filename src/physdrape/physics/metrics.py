@@ -33,10 +33,10 @@ def faces_inside(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_in
     centroids, owner = x[faces].mean(dim=1), body_index[faces[:, 0]]
     if bound is None:
         return bodies.query(centroids, body_index=owner).inside
-    centroids_bound = bound.part(x.shape[0], x.shape[0] + faces.shape[0])
-    rows = centroids_bound.rows_below(centroids, 0.0)
+    rows, query = bodies.query_within(centroids, 0.0, body_index=owner,
+                                      bound=bound.part(x.shape[0], x.shape[0] + faces.shape[0]))
     inside = torch.zeros(faces.shape[0], dtype=torch.bool, device=x.device)
-    inside[rows] = bodies.query(centroids[rows], body_index=owner[rows], bound=centroids_bound.select(rows)).inside
+    inside[rows] = query.inside
     return inside
 
 
@@ -91,13 +91,12 @@ def drape_metrics(x: Tensor, garments: GarmentBatch, bodies: BodySurface, body_i
     reference = Cloth.build(garments.to(x.dtype), DEFAULT_MATERIAL)
     cloth = reference if cloth is None else cloth
     count = garments.num_garments
-    if bound is None:
-        distance = bodies.query(x, body_index=body_index).signed_distance
-    else:  # the vertices proved farther than CONTACT_DISTANCE count as that far: neither close nor in contact
-        verts_bound = bound.part(0, x.shape[0])
-        rows = verts_bound.rows_below(x, CONTACT_DISTANCE)
-        distance = x.new_full((x.shape[0],), 2.0 * CONTACT_DISTANCE)
-        distance[rows] = bodies.query(x[rows], body_index=body_index[rows], bound=verts_bound.select(rows)).signed_distance
+    rows, query = bodies.query_within(x, CONTACT_DISTANCE, body_index=body_index,
+                                      bound=None if bound is None else bound.part(0, x.shape[0]))
+    distance = query.signed_distance
+    if rows is not None:  # the vertices proved farther than CONTACT_DISTANCE count as that far:
+        # neither close nor in contact
+        distance = x.new_full((x.shape[0],), 2.0 * CONTACT_DISTANCE).index_copy(0, rows, distance)
     verts_per_garment = x.new_zeros(count).index_add_(0, garments.vert_garment, torch.ones_like(distance))
     close = x.new_zeros(count).index_add_(0, garments.vert_garment, (distance < CLOSE_DISTANCE).to(x.dtype))
     force = internal_forces(x, cloth).norm(dim=-1)
