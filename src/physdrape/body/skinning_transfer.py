@@ -96,8 +96,10 @@ class SkinningTransfer:
         canonical_verts: canonical body the template was authored on [m], shape (Vb, 3).
         template_verts: garment template [m], shape (V, 3).
         edges: the template's undirected edges, shape (E, 2) int64.
-        max_stretch: bound on edge length / rest length enforced on X_init after skinning (see
-            `physdrape.geometry.strain_limit`); None leaves the skinned positions as they are.
+        max_stretch: bound on edge length / rest length that X_init's edges are pulled back
+            toward after skinning, for `limit_sweeps` sweeps (see
+            `physdrape.geometry.strain_limit`; where the body holds the garment out, some edges
+            stay above it); None leaves the skinned positions as they are.
         limit_sweeps: strain-limiting sweeps (momentum-accelerated Jacobi edge projection).
         limit_momentum: heavy-ball momentum of those sweeps (0 = plain Jacobi).
         contact_margin: during strain limiting, vertices are held at least this far outside the
@@ -106,8 +108,9 @@ class SkinningTransfer:
     Why a tight bound (1.02) with contact: skinning copies the body's own growth onto the
     garment, so on a taller or wider body than the canonical one the garment is stretched
     everywhere, while the static equilibrium lets it ride up and hug the body instead, barely
-    stretched. Pulling every edge back to 1.02 x rest with the body held out brings X_init
-    close to that: the model and its solver start from a nearly unstretched garment that is
+    stretched. Pulling the edges back toward 1.02 x rest with the body held out brings X_init
+    close to that (the pull acts on stretched edges only: edges that skinning compressed stay
+    as they are): the model and its solver start from a nearly unstretched garment that is
     still outside the body (the "X_init" and "Skinned" rows of `results/eval.md` compare the
     two starts).
     """
