@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from physdrape.body.model import BodyState
-from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.body.skinning_transfer import BodySearch, SkinningTransfer
 from physdrape.garments import layering
 from physdrape.garments.closures import panel_overlaps
 from physdrape.garments.pieces import garment_parts, waistband_band
@@ -187,6 +187,7 @@ class DrapePipeline:
         self.device = torch.device(device)
         self.max_stretch = max_stretch
         self._transfers: dict[str, SkinningTransfer] = {}
+        self._body_search: BodySearch | None = None  # what every template's fit searches on the body
         self._device_transfers: dict[str, SkinningTransfer] = {}
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
@@ -196,8 +197,11 @@ class DrapePipeline:
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
         if template.key not in self._transfers:
+            if self._body_search is None:
+                self._body_search = BodySearch.of(self.body.canonical_verts(dtype=torch.float64), self.body.faces)
             transfer = SkinningTransfer.fit(self.body.canonical_verts(dtype=torch.float64), self.body.faces,
-                                            torch.from_numpy(template.verts), torch.from_numpy(template.faces))
+                                            torch.from_numpy(template.verts), torch.from_numpy(template.faces),
+                                            search=self._body_search)
             if self.max_stretch is not None:
                 transfer = replace(transfer, max_stretch=self.max_stretch)
             self._transfers[template.key] = transfer

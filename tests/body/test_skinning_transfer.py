@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from physdrape.body.model import BodyState
-from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.body.skinning_transfer import BodySearch, SkinningTransfer
 
 
 def tube(radius: float, x0: float, x1: float, rings: int, sections: int, *, capped: bool):
@@ -231,6 +231,21 @@ def test_apply_is_differentiable_and_float32(limb_and_sleeve):
     assert x.dtype == torch.float32
     x.sum().backward()
     assert rest.grad is not None and rest.grad.abs().sum() > 0
+
+
+def test_a_body_search_made_once_fits_every_template_as_a_fresh_one(limb_and_sleeve):
+    body, body_faces, _, sleeve, sleeve_faces, transfer = limb_and_sleeve
+    search = BodySearch.of(body, body_faces)
+    short, short_faces = tube(0.06, -0.1, 0.2, 21, 28, capped=False)
+    for verts, faces, alone in ((sleeve, sleeve_faces, transfer),
+                                (short, short_faces, SkinningTransfer.fit(body, body_faces, short, short_faces))):
+        shared = SkinningTransfer.fit(body, body_faces, verts, faces, search=search)
+        for got, want in zip((shared.weights.crow_indices(), shared.weights.col_indices(), shared.weights.values()),
+                             (alone.weights.crow_indices(), alone.weights.col_indices(), alone.weights.values())):
+            assert torch.equal(got, want)
+    other, other_faces = tube(0.05, -0.3, 0.3, 11, 12, capped=True)
+    with pytest.raises(ValueError, match=r"BodySearch\.of"):
+        SkinningTransfer.fit(body, body_faces, sleeve, sleeve_faces, search=BodySearch.of(other, other_faces))
 
 
 def test_fit_and_apply_reject_bad_inputs(limb_and_sleeve):

@@ -38,12 +38,12 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from physdrape.geometry.closest_point import closest_point_on_triangle
-from physdrape.geometry.proximity import BodySurface
+from physdrape.geometry.proximity import BodySurface, SignMethod
 from physdrape.geometry.strain_limit import limit_edge_stretch
 from physdrape.geometry.topology import undirected_edges
 from physdrape.physics.contact import DEFAULT_MARGIN
 
-__all__ = ["SkinningTransfer"]
+__all__ = ["BodySearch", "SkinningTransfer"]
 
 
 def _as_float_array(name: str, value, ndim_last: int = 3) -> np.ndarray:
@@ -85,6 +85,31 @@ def _garment_smoother(faces: np.ndarray, num_verts: int) -> sp.csr_matrix:
 #: stretches severalfold at the armpit under raised arms, and momentum sweeps handle such spikes
 #: badly.
 LOCAL_STRETCH_BOUND = 1.5
+
+
+@dataclass(frozen=True, eq=False)
+class BodySearch:
+    """What `SkinningTransfer.fit` searches on a canonical body, built once per body and reused
+    for every template fitted on it (`of`): the body as float64 / int64 arrays, its triangles
+    (Fb, 3, 3), a k-d tree of their centroids, its BVH (only closest faces are asked: the
+    pseudo-normal sign) and its mean edge length [m]."""
+
+    verts: np.ndarray
+    faces: np.ndarray
+    triangles: np.ndarray
+    centroids: cKDTree
+    surface: BodySurface
+    edge_length: float
+
+    @classmethod
+    def of(cls, canonical_verts, body_faces) -> BodySearch:
+        """The search structures of a canonical body, rest pose [m] (Vb, 3), triangles (Fb, 3) int."""
+        verts = _as_float_array("canonical_verts", canonical_verts)
+        faces = _as_faces("body_faces", body_faces, len(verts))
+        tri = verts[faces]
+        surface = BodySurface(torch.from_numpy(verts), torch.from_numpy(faces), sign_method=SignMethod.PSEUDO_NORMAL)
+        edge_length = float(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).mean())
+        return cls(verts, faces, tri, cKDTree(tri.mean(1)), surface, edge_length)
 
 
 @dataclass(frozen=True)
@@ -148,6 +173,7 @@ class SkinningTransfer:
         prune_below: float = 1e-4,
         num_candidates: int | None = None,
         max_stretch: float | None = 1.02,
+        search: BodySearch | None = None,
     ) -> SkinningTransfer:
         """Fit transfer weights of a garment template on the canonical body.
 
@@ -165,6 +191,8 @@ class SkinningTransfer:
                 (default max(4k, 32)).
             max_stretch: bound on the edge stretch of X_init (strain limiting after skinning;
                 > 1), or None for plain skinning.
+            search: `BodySearch.of(canonical_verts, body_faces)`, made once by a caller that fits
+                many templates on the same body; None makes it here.
 
         Returns:
             The fitted ``SkinningTransfer`` (tensors in the dtype of ``canonical_verts`` when it is
@@ -179,8 +207,13 @@ class SkinningTransfer:
             raise ValueError(f"max_stretch must be > 1 or None, got {max_stretch}")
         dtype = canonical_verts.dtype if isinstance(canonical_verts, Tensor) and canonical_verts.is_floating_point() \
             else torch.float64
-        vb = _as_float_array("canonical_verts", canonical_verts)
-        fb = _as_faces("body_faces", body_faces, len(vb))
+        if search is None:
+            search = BodySearch.of(canonical_verts, body_faces)
+        elif search.verts.shape != tuple(np.shape(canonical_verts)) or search.faces.shape != tuple(np.shape(body_faces)):
+            raise ValueError(f"search is of a body with {search.verts.shape[0]} vertices and {search.faces.shape[0]} "
+                             f"faces, not this one ({np.shape(canonical_verts)}, {np.shape(body_faces)}): pass "
+                             "BodySearch.of(canonical_verts, body_faces)")
+        vb, fb, tri = search.verts, search.faces, search.triangles
         vg = _as_float_array("garment_verts", garment_verts)
         fg = _as_faces("garment_faces", garment_faces, len(vg))
         num_body, num_garment, num_faces = len(vb), len(vg), len(fb)
@@ -188,14 +221,11 @@ class SkinningTransfer:
         # 1. k nearest triangles (exact distances among centroid-preselected candidates).
         k = min(k, num_faces)
         num_cand = min(num_faces, num_candidates or max(4 * k, 32))
-        tri = vb[fb]  # (Fb, 3, 3)
-        _, cand = cKDTree(tri.mean(1)).query(vg, k=num_cand)
+        _, cand = search.centroids.query(vg, k=num_cand)
         cand = cand.reshape(num_garment, num_cand)
         # Make sure the true closest triangle is a candidate: BVH query on the canonical body.
-        from physdrape.geometry.proximity import BodySurface, SignMethod
-
-        vb_t, vg_t = torch.from_numpy(vb), torch.from_numpy(vg)
-        closest = BodySurface(vb_t, torch.from_numpy(fb), sign_method=SignMethod.PSEUDO_NORMAL).query(vg_t).face
+        vg_t = torch.from_numpy(vg)
+        closest = search.surface.query(vg_t).face
         cand = np.concatenate([closest.numpy()[:, None], cand], 1)
         tri_t = torch.from_numpy(tri)[torch.from_numpy(cand)]  # (V, C, 3, 3)
         p, bary = closest_point_on_triangle(vg_t[:, None], tri_t[..., 0, :], tri_t[..., 1, :], tri_t[..., 2, :])
@@ -206,9 +236,8 @@ class SkinningTransfer:
         bary = bary.gather(1, order[..., None].expand(-1, -1, 3))  # (V, k, 3)
 
         # Gaussian weights relative to the closest distance.
-        edge_len = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).mean()
         d0 = dist[:, :1]
-        sigma = d0.clamp_min(float(edge_len))
+        sigma = d0.clamp_min(search.edge_length)
         w = torch.exp(-(dist.square() - d0.square()) / (2 * sigma.square()))
         w = torch.where(torch.isfinite(dist), w, torch.zeros_like(w))
         w = (w[..., None] * bary).reshape(num_garment, -1)  # (V, 3k)
