@@ -112,7 +112,13 @@ def _galerkin_operator(prolong: sp.csr_matrix, rows: np.ndarray, cols: np.ndarra
     entry_a = prolong.indptr[rows][pair] + local // count_b[pair]
     entry_b = prolong.indptr[cols][pair] + local % count_b[pair]
     keys = prolong.indices[entry_a].astype(np.int64) * patches + prolong.indices[entry_b]
-    blocks, row = np.unique(keys, return_inverse=True)
+    # the distinct keys in ascending order and each key's place among them (np.unique's, by a
+    # table over the patches² keys instead of a sort of the many products)
+    reached = np.zeros(patches * patches, dtype=bool)
+    reached[keys] = True
+    blocks = np.flatnonzero(reached)
+    place = np.cumsum(reached) - 1
+    row = place[keys]
     weights = prolong.data[entry_a] * prolong.data[entry_b]
     operator = sp.csr_matrix((weights, (row.reshape(-1), pair)), shape=(len(blocks), len(rows)))
     operator.sum_duplicates()
