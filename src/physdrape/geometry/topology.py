@@ -299,6 +299,9 @@ def narrow_band_order(rows: np.ndarray, cols: np.ndarray, num_nodes: int) -> np.
     graph = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_nodes, num_nodes))
     graph = (graph + graph.T).tocsr()
     degree = np.diff(graph.indptr)
+    # each node's neighbours in the order a Cuthill–McKee step queues them: by degree, then index
+    neighbours = [sorted(graph.indices[graph.indptr[node]:graph.indptr[node + 1]].tolist(),
+                         key=lambda n: (degree[n], n)) for node in range(num_nodes)]
 
     def width(order: np.ndarray) -> int:
         new = np.empty_like(order)
@@ -306,20 +309,19 @@ def narrow_band_order(rows: np.ndarray, cols: np.ndarray, num_nodes: int) -> np.
         return int(np.abs(new[rows] - new[cols]).max(initial=0))
 
     def reverse_cuthill_mckee_from(start: int) -> np.ndarray:
-        order, seen = [], np.zeros(num_nodes, bool)
+        order, seen = [], bytearray(num_nodes)
         for root in [start, *np.argsort(degree, kind="stable").tolist()]:  # every component
             if seen[root]:
                 continue
-            seen[root] = True
+            seen[root] = 1
             queue = collections.deque([root])
             while queue:
                 node = queue.popleft()
                 order.append(node)
-                around = graph.indices[graph.indptr[node]:graph.indptr[node + 1]]
-                fresh = [n for n in around.tolist() if not seen[n]]
-                for n in sorted(fresh, key=lambda n: (degree[n], n)):
-                    seen[n] = True
-                    queue.append(n)
+                for n in neighbours[node]:
+                    if not seen[n]:
+                        seen[n] = 1
+                        queue.append(n)
         return np.array(order[::-1], dtype=np.int64)
 
     candidates = [np.arange(num_nodes), reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.int64)]
