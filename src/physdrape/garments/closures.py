@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from physdrape.geometry.topology import boundary_edges, undirected_edges
@@ -51,14 +52,13 @@ def panel_overlaps(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray, *, r
     pairs = pairs[keep]
     same = piece[pairs[:, 0]] == piece[pairs[:, 1]]
     if same.any():
+        # one panel: at most min_hops mesh edges apart (a search of min_hops from each pair's first vertex)
         e = undirected_edges(f)
         adj = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
-                            shape=(num_verts, num_verts)).tocsr() + sp.identity(num_verts, format="csr")
-        reach = adj
-        for _ in range(min_hops - 1):
-            reach = reach @ adj
-            reach.data[:] = 1.0
-        near = np.asarray(reach[pairs[same, 0], pairs[same, 1]]).ravel() > 0
+                            shape=(num_verts, num_verts)).tocsr()
+        sources, source = np.unique(pairs[same, 0], return_inverse=True)
+        hops = dijkstra(adj, unweighted=True, indices=sources, limit=min_hops)
+        near = hops[source.reshape(-1), pairs[same, 1]] <= min_hops
         far = np.ones(len(pairs), bool)
         far[np.flatnonzero(same)[near]] = False
         pairs = pairs[far]
