@@ -34,7 +34,7 @@ from physdrape.body.model import BodyState
 from physdrape.body.skinning_transfer import BodySearch, SkinningTransfer
 from physdrape.garments import layering
 from physdrape.garments.closures import panel_overlaps
-from physdrape.garments.pieces import garment_parts, waistband_band
+from physdrape.garments.pieces import GarmentParts, garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
@@ -192,6 +192,7 @@ class DrapePipeline:
         self._garments: dict[str, Garment] = {}
         self._bands: dict[str, np.ndarray] = {}
         self._closures: dict[str, np.ndarray] = {}
+        self._pieces: dict[str, GarmentParts] = {}
         self._layer_pairs: dict[str, layering.LayerPairs] = {}
 
     def transfer(self, template: Template) -> SkinningTransfer:
@@ -337,7 +338,7 @@ class DrapePipeline:
         """The template's gripping vertices, its waistband's strip (`garments.pieces.waistband_band`),
         (K,) int64 (computed once)."""
         if template.key not in self._bands:
-            parts = garment_parts(template.verts, template.faces)
+            parts = self._parts(template)
             self._bands[template.key] = waistband_band(template.verts, parts)
         return self._bands[template.key]
 
@@ -346,7 +347,7 @@ class DrapePipeline:
         top left out (`garments.closures.panel_overlaps`): the pairs closures tie, (K, 2) int64
         (computed once)."""
         if template.key not in self._closures:
-            parts = garment_parts(template.verts, template.faces)
+            parts = self._parts(template)
             exclude = None if parts.lower is None else parts.piece == parts.lower
             self._closures[template.key] = panel_overlaps(template.verts, template.faces, parts.piece, exclude=exclude)
         return self._closures[template.key]
@@ -365,6 +366,12 @@ class DrapePipeline:
                                                        device=batch.device)))
         return Stitches.cat(parts) if parts else None
 
+    def _parts(self, template: Template) -> GarmentParts:
+        """The template's pieces (`garments.pieces.garment_parts`; found once)."""
+        if template.key not in self._pieces:
+            self._pieces[template.key] = garment_parts(template.verts, template.faces)
+        return self._pieces[template.key]
+
     def layer_pairs(self, template: Template) -> np.ndarray:
         """[outer, inner] vertex pairs where the template's pieces overlap on the canonical body
         (`garments.layering.layer_pairs`), (P, 2) int64 (computed once)."""
@@ -373,7 +380,7 @@ class DrapePipeline:
     def _layering(self, template: Template) -> layering.LayerPairs:
         """The template's layer pairs and their separation on it [m] (`layering.layer_pairs`)."""
         if template.key not in self._layer_pairs:
-            piece = garment_parts(template.verts, template.faces).piece
+            piece = self._parts(template).piece
             body_verts = self.body.canonical_verts(dtype=torch.float64).numpy()
             self._layer_pairs[template.key] = layering.layer_pairs(template.verts, piece, body_verts,
                                                                    np.asarray(self.body.faces, np.int64))
