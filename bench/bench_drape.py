@@ -10,6 +10,10 @@ Rows (the bundled model, T = 15, one torch thread, medians):
 - warm drape, new pose: the same T-shirt on a pose the Draper has not posed yet (each pose drawn
   by the seeded sampler beforehand and passed as an array, so the sampler is not timed);
 - batch of 8: one `drape` call of the T-shirt on 8 poses (the same 8 every call), per garment;
+- new garment: a garment mesh the Draper has not draped before, on the default pose (a
+  procedural T-shirt of a seed of its own per call, generated beforehand and passed as arrays, so
+  the generator is not timed): the drape with the template's first-use work (skinning transfer
+  fit, topology, coarse-space structure, closures), what each garment of a dataset costs;
 - with `--cold`: a new process running `physdrape drape --out TMP` (imports, model and body
   load, transfer fit, drape, every output file).
 
@@ -43,6 +47,7 @@ ROWS = {
     "x_init": "X_init (init phase of the same-pose drape) [ms]",
     "new_pose": "warm drape, new pose [ms]",
     "batch8": "batch of 8 poses, per garment [ms]",
+    "new_garment": "warm drape, new garment [ms]",
 }
 #: The issue's targets [ms] (one thread, medians).
 TARGETS = {"same_pose": 150.0, "x_init": 20.0, "new_pose": 250.0, "batch8": 100.0}
@@ -65,6 +70,8 @@ def worker(repeats: int, device: str, threads: int, packages: list[str]) -> dict
     first = drapers[packages[0]]
     poses = [first.poses(f"random:{1000 + k}")[0].pose[0] for k in range(repeats + 1)]
     eight = [first.poses(f"random:{k}")[0].pose[0] for k in range(8)]
+    specs = importlib.import_module(f"{packages[0]}.api.specs")
+    meshes = [(t.verts, t.faces) for t in (specs.garment_template(f"tshirt:{100 + k}") for k in range(repeats))]
     for draper in drapers.values():
         draper.drape("default", pose=poses[0])  # a first new pose outside the timing
         draper.drape("default", pose=eight, batch_size=8)
@@ -83,6 +90,9 @@ def worker(repeats: int, device: str, threads: int, packages: list[str]) -> dict
                 t = time.perf_counter()
                 draper.drape("default", pose=eight, batch_size=8)
                 row["batch8"].append(1e3 * (time.perf_counter() - t) / 8)
+            t = time.perf_counter()
+            draper.drape(meshes[k])
+            row["new_garment"].append(1e3 * (time.perf_counter() - t))
     return out
 
 
