@@ -223,8 +223,10 @@ def _coarse_levels(edges: np.ndarray, num_verts: int, levels: int) -> list[tuple
         _, _, cell = dijkstra(adj, unweighted=True, indices=centres, min_only=True, return_predecessors=True)
         ca, cb = cell[a], cell[b]
         cross = ca != cb
-        pairs = np.stack([np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])], axis=1)
-        pairs = np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+        # the distinct pairs (low, high) in lexicographic order, as np.unique(axis=0) gives them,
+        # by the unique of one integer key per pair (much cheaper than a unique over rows)
+        key = np.unique(np.minimum(ca[cross], cb[cross]) * n + np.maximum(ca[cross], cb[cross]))
+        pairs = np.stack([key // n, key % n], axis=1)
         nodes = nodes[centres]
         edges = nodes[np.searchsorted(centres, pairs)] if len(pairs) else pairs
         edges = np.sort(edges, axis=1)
