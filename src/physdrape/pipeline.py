@@ -198,11 +198,12 @@ class DrapePipeline:
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
         if template.key not in self._transfers:
-            if self._body_search is None:
+            if self._body_search is None:  # the canonical body, formed and searched once
                 self._body_search = BodySearch.of(self.body.canonical_verts(dtype=torch.float64), self.body.faces)
-            transfer = SkinningTransfer.fit(self.body.canonical_verts(dtype=torch.float64), self.body.faces,
+            search = self._body_search
+            transfer = SkinningTransfer.fit(torch.from_numpy(search.verts), search.faces,
                                             torch.from_numpy(template.verts), torch.from_numpy(template.faces),
-                                            search=self._body_search)
+                                            search=search)
             if self.max_stretch is not None:
                 transfer = replace(transfer, max_stretch=self.max_stretch)
             self._transfers[template.key] = transfer
