@@ -249,8 +249,11 @@ class SkinningTransfer:
         # 2. Smoothing over the garment graph.
         if smoothing_iterations:
             smoother = _garment_smoother(fg, num_garment)
-            for _ in range(smoothing_iterations):
-                mat = (1.0 - smoothing_strength) * mat + smoothing_strength * (smoother @ mat)
+            for _ in range(smoothing_iterations):  # (1 − a) W + a S W, the products scaled in place
+                spread = smoother @ mat
+                spread.data *= smoothing_strength
+                mat.data *= 1.0 - smoothing_strength  # this function's own matrix (normalised above, or a sum)
+                mat = mat + spread
         mat = mat.tocsr()
         mat.eliminate_zeros()
 
