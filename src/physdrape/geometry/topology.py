@@ -30,8 +30,10 @@ def _edge_groups(faces: np.ndarray):
     lo, hi = ab.min(axis=1), ab.max(axis=1)
     key = lo * num_verts + hi
     order = np.argsort(key, kind="stable")
-    keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
-    return ab[order], face[order], opposite[order], keys, start, count, num_verts
+    ordered = key[order]  # sorted: each run of equal keys is one edge (np.unique's keys, first indices, counts)
+    start = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]]) if len(ordered) else np.zeros(0, np.int64)
+    count = np.diff(np.r_[start, len(ordered)])
+    return ab[order], face[order], opposite[order], ordered[start], start, count, num_verts
 
 
 def undirected_edges(faces: np.ndarray) -> np.ndarray:
