@@ -23,6 +23,9 @@ from physdrape.geometry.topology import boundary_edges, undirected_edges
 
 __all__ = ["panel_overlaps"]
 
+#: Distances held at once by the one-panel test's searches (rows × vertices, float64: 80 MB).
+_HOP_ROWS = 10_000_000
+
 
 def panel_overlaps(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray, *, radius: float = 12e-3,
                    min_hops: int = 6, exclude: np.ndarray | None = None) -> np.ndarray:
@@ -56,9 +59,15 @@ def panel_overlaps(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray, *, r
         e = undirected_edges(f)
         adj = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
                             shape=(num_verts, num_verts)).tocsr()
-        sources, source = np.unique(pairs[same, 0], return_inverse=True)
-        hops = dijkstra(adj, unweighted=True, indices=sources, limit=min_hops)
-        near = hops[source.reshape(-1), pairs[same, 1]] <= min_hops
+        first, second = pairs[same, 0], pairs[same, 1]
+        near = np.zeros(len(first), bool)
+        sources = np.unique(first)
+        chunk = max(1, _HOP_ROWS // num_verts)  # the searches' (sources, V) distances, a bounded block at a time
+        for start in range(0, len(sources), chunk):
+            some = sources[start:start + chunk]
+            hops = dijkstra(adj, unweighted=True, indices=some, limit=min_hops)
+            mine = (first >= some[0]) & (first <= some[-1])
+            near[mine] = hops[np.searchsorted(some, first[mine]), second[mine]] <= min_hops
         far = np.ones(len(pairs), bool)
         far[np.flatnonzero(same)[near]] = False
         pairs = pairs[far]

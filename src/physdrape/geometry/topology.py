@@ -227,7 +227,8 @@ def _coarse_levels(edges: np.ndarray, num_verts: int, levels: int) -> list[tuple
         cross = ca != cb
         # the distinct pairs (low, high) in lexicographic order, as np.unique(axis=0) gives them,
         # by the unique of one integer key per pair (much cheaper than a unique over rows)
-        key = np.unique(np.minimum(ca[cross], cb[cross]) * n + np.maximum(ca[cross], cb[cross]))
+        low, high = np.minimum(ca[cross], cb[cross]).astype(np.int64), np.maximum(ca[cross], cb[cross])
+        key = np.unique(low * n + high)  # int64: n² overflows int32 on a large mesh
         pairs = np.stack([key // n, key % n], axis=1)
         nodes = nodes[centres]
         edges = nodes[np.searchsorted(centres, pairs)] if len(pairs) else pairs
