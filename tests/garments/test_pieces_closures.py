@@ -71,3 +71,13 @@ def test_overlapping_wrap_front_is_found_and_a_closed_tube_is_not():
     # an excluded piece is never paired
     verts, faces = tube(0.0, 0.4, sweep=2 * np.pi * 40 / 36, around=40, radius_step=0.003 / (2 * np.pi))
     assert len(panel_overlaps(verts, faces, np.zeros(len(verts), np.int64), exclude=np.ones(len(verts), bool))) == 0
+
+
+def test_the_one_panel_test_in_blocks_of_sources_finds_the_same_pairs(monkeypatch):
+    import physdrape.garments.closures as closures
+
+    verts, faces = tube(0.0, 0.4, sweep=2 * np.pi * 40 / 36, around=40, radius_step=0.003 / (2 * np.pi))
+    piece = garment_parts(verts, faces).piece
+    whole = panel_overlaps(verts, faces, piece, radius=0.05)
+    monkeypatch.setattr(closures, "_HOP_ROWS", 3 * len(verts))  # three sources per search
+    assert len(whole) > 0 and np.array_equal(panel_overlaps(verts, faces, piece, radius=0.05), whole)
