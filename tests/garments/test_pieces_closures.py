@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from physdrape.garments import closures
 from physdrape.garments.closures import panel_overlaps
 from physdrape.garments.pieces import garment_parts
 
@@ -74,8 +75,6 @@ def test_overlapping_wrap_front_is_found_and_a_closed_tube_is_not():
 
 
 def test_the_one_panel_test_in_blocks_of_sources_finds_the_same_pairs(monkeypatch):
-    import physdrape.garments.closures as closures
-
     verts, faces = tube(0.0, 0.4, sweep=2 * np.pi * 40 / 36, around=40, radius_step=0.003 / (2 * np.pi))
     piece = garment_parts(verts, faces).piece
     whole = panel_overlaps(verts, faces, piece, radius=0.05)
