@@ -203,3 +203,44 @@ def test_batch_gallery_has_a_tile_per_garment(tmp_path):
     assert single.shape[0] < heights[0] and single.shape[0] < heights[1] < heights[2] == heights[3]  # 4 a row
     with pytest.raises(ValueError, match="one caption per batch picture"):
         compose_gallery(details, tmp_path / "x.png", batch=renders[:2], batch_captions=["only one"])
+
+
+def _reference_rasterise(screen, faces, height, width):
+    """The z-buffer by brute force: every pixel centre against every triangle (barycentrics as
+    `rasterise` forms them), the nearest wins and, of equally near ones, the first in claim order."""
+    from physdrape.render.raster import _claim_order
+
+    order = _claim_order(screen, faces)
+    face_id = np.full((height, width), -1, np.int64)
+    bary = np.zeros((height, width, 3))
+    best = np.full((height, width), np.inf)
+    rank = np.full((height, width), np.iinfo(np.int64).max)
+    cy, cx = np.mgrid[:height, :width] + 0.5
+    for f, (a, b, c) in enumerate(np.asarray(screen, np.float64)[faces]):
+        den = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1])
+        if abs(den) <= 1e-12:
+            continue
+        w0 = ((b[1] - c[1]) * (cx - c[0]) + (c[0] - b[0]) * (cy - c[1])) / den
+        w1 = ((c[1] - a[1]) * (cx - c[0]) + (a[0] - c[0]) * (cy - c[1])) / den
+        w2 = 1.0 - w0 - w1
+        z = w0 * a[2] + w1 * b[2] + w2 * c[2]
+        take = (w0 >= -1e-9) & (w1 >= -1e-9) & (w2 >= -1e-9) & ((z < best) | ((z == best) & (order[f] < rank)))
+        best[take], rank[take], face_id[take] = z[take], order[f], f
+        bary[take] = np.stack([w0, w1, w2], -1)[take]
+    return face_id, bary
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rasterise_equals_a_brute_force_z_buffer_with_its_tie_rule(seed):
+    from physdrape.render.raster import rasterise
+
+    rng = np.random.default_rng(seed)
+    n = 120
+    screen = np.c_[rng.uniform(-10, 70, (n, 2)), rng.uniform(0.0, 1.0, n)]
+    screen[: n // 2, 2] = 0.5  # coplanar triangles at one depth: ties decided by the claim order
+    faces = np.r_[rng.integers(0, n // 2, (40, 3)), rng.integers(0, n, (60, 3)), [[0, 0, 1]]]  # and a degenerate one
+    face_id, bary = rasterise(screen, faces, 48, 56)
+    want_id, want_bary = _reference_rasterise(screen, faces, 48, 56)
+    assert (face_id >= 0).mean() > 0.5 and len(np.unique(face_id)) > 20
+    np.testing.assert_array_equal(face_id, want_id)
+    np.testing.assert_allclose(bary, want_bary, rtol=0, atol=1e-12)

@@ -13,6 +13,7 @@ import numpy as np
 
 from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.render.colors import BACKGROUND_RGB
+from physdrape.warp_runtime import defined_once, warp
 
 __all__ = ["project", "rasterise", "render_view", "yaw_rotation"]
 
@@ -24,7 +25,10 @@ def yaw_rotation(yaw_deg: float) -> np.ndarray:
 
 
 def rasterise(screen: np.ndarray, faces: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Z-buffer rasterisation of triangles.
+    """Z-buffer rasterisation of triangles (three launches of one Warp kernel: each triangle's
+    pixels lower the depth buffer, then the nearest triangles claim their pixels, then the winner
+    writes its face and barycentrics; of equally near triangles the one of the smallest
+    `_claim_order` wins, so the image does not depend on the order of the threads).
 
     Args:
         screen: vertex positions in pixels (col, row) and depth (smaller = nearer), shape (N, 3).
@@ -34,57 +38,77 @@ def rasterise(screen: np.ndarray, faces: np.ndarray, height: int, width: int) ->
     Returns:
         face_id (H, W) int64 (−1 = background) and barycentrics (H, W, 3).
     """
-    tri = screen[faces]  # (F, 3, 3)
-    lo = np.floor(tri[:, :, :2].min(1)).astype(np.int64)
-    hi = np.ceil(tri[:, :, :2].max(1)).astype(np.int64)
-    size = (hi - lo).max(1) + 1
-    visible = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < width) & (lo[:, 1] < height)
-    best_pix, best_depth, best_face, best_bary = [], [], [], []
-    k = 4
-    remaining = visible.copy()
-    while remaining.any():
-        group = np.flatnonzero(remaining & (size <= k))
-        remaining[group] = False
-        if group.size:
-            # process in slices so the candidate arrays stay small
-            for s in range(0, group.size, max(1, 2_000_000 // (k * k))):
-                g = group[s:s + max(1, 2_000_000 // (k * k))]
-                dx, dy = np.meshgrid(np.arange(k), np.arange(k))
-                px = lo[g, 0, None] + dx.reshape(1, -1)
-                py = lo[g, 1, None] + dy.reshape(1, -1)
-                cx, cy = px + 0.5, py + 0.5
-                a, b, c = tri[g, 0], tri[g, 1], tri[g, 2]
-                den = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
-                ok_den = np.abs(den) > 1e-12
-                den = np.where(ok_den, den, 1.0)[:, None]
-                w0 = ((b[:, 1, None] - c[:, 1, None]) * (cx - c[:, 0, None]) + (c[:, 0, None] - b[:, 0, None]) * (cy - c[:, 1, None])) / den
-                w1 = ((c[:, 1, None] - a[:, 1, None]) * (cx - c[:, 0, None]) + (a[:, 0, None] - c[:, 0, None]) * (cy - c[:, 1, None])) / den
-                w2 = 1.0 - w0 - w1
-                eps = -1e-9
-                inside = (w0 >= eps) & (w1 >= eps) & (w2 >= eps) & ok_den[:, None]
-                inside &= (px >= 0) & (px < width) & (py >= 0) & (py < height)
-                fi, ci = np.nonzero(inside)
-                if fi.size == 0:
-                    continue
-                bary = np.stack([w0[fi, ci], w1[fi, ci], w2[fi, ci]], 1)
-                depth = (bary * tri[g[fi], :, 2]).sum(1)
-                best_pix.append(py[fi, ci] * width + px[fi, ci])
-                best_depth.append(depth)
-                best_face.append(g[fi])
-                best_bary.append(bary)
-        k *= 2
-    face_id = np.full(height * width, -1, np.int64)
-    bary_img = np.zeros((height * width, 3))
-    if best_pix:
-        pix, depth = np.concatenate(best_pix), np.concatenate(best_depth)
-        face, bary = np.concatenate(best_face), np.concatenate(best_bary)
-        order = np.lexsort((depth, pix))
-        pix, face, bary = pix[order], face[order], bary[order]
-        first = np.ones(pix.size, bool)
-        first[1:] = pix[1:] != pix[:-1]
-        face_id[pix[first]] = face[first]
-        bary_img[pix[first]] = bary[first]
-    return face_id.reshape(height, width), bary_img.reshape(height, width, 3)
+    wp, kernel = warp(), _raster_kernel()
+    pixels = height * width
+    face_id = np.full(pixels, -1, np.int64)
+    bary = np.zeros((pixels, 3))
+    faces = np.asarray(faces, np.int64)
+    if len(faces) == 0 or pixels == 0:
+        return face_id.reshape(height, width), bary.reshape(height, width, 3)
+    args = [wp.array(np.ascontiguousarray(screen, np.float64), dtype=wp.vec3d, device="cpu"),
+            wp.array(np.ascontiguousarray(faces, np.int32), dtype=wp.int32, device="cpu"),
+            wp.array(_claim_order(screen, faces), dtype=wp.int32, device="cpu"), int(width), int(height)]
+    depth = wp.array(np.full(pixels, np.inf), dtype=wp.float64, device="cpu")
+    winner = wp.array(np.full(pixels, np.iinfo(np.int32).max, np.int32), dtype=wp.int32, device="cpu")
+    out_face = wp.array(face_id, dtype=wp.int64, device="cpu")
+    out_bary = wp.array(bary, dtype=wp.vec3d, device="cpu")
+    for stage in range(3):
+        wp.launch(kernel, dim=len(faces), inputs=[*args, stage, depth, winner, out_face, out_bary], device="cpu")
+    return out_face.numpy().reshape(height, width), out_bary.numpy().reshape(height, width, 3)
+
+
+def _claim_order(screen: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Which of equally near triangles takes a pixel: smaller first, by the side of the square
+    (4, 8, 16, … px) that holds the triangle's pixel box, then by face index, (F,) int32."""
+    tri = np.asarray(screen, np.float64)[faces][:, :, :2]
+    size = (np.ceil(tri.max(1)) - np.floor(tri.min(1))).max(1) + 1
+    rank = np.ceil(np.log2(np.maximum(size, 4) / 4)).astype(np.int64)
+    return (rank * len(faces) + np.arange(len(faces))).astype(np.int32)
+
+
+@defined_once
+def _raster_kernel():
+    """The rasteriser's kernel (`rasterise`), defined on first use."""
+    wp = warp()
+    f64 = wp.float64
+
+    @wp.kernel(enable_backward=False)
+    def raster_kernel(screen: wp.array(dtype=wp.vec3d), faces: wp.array2d(dtype=wp.int32),
+                      order: wp.array(dtype=wp.int32), width: int, height: int, stage: int,
+                      depth: wp.array(dtype=wp.float64), winner: wp.array(dtype=wp.int32),
+                      face_id: wp.array(dtype=wp.int64), bary: wp.array(dtype=wp.vec3d)):
+        f = wp.tid()
+        a = screen[faces[f, 0]]
+        b = screen[faces[f, 1]]
+        c = screen[faces[f, 2]]
+        den = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1])
+        if wp.abs(den) <= f64(1e-12):
+            return
+        x_lo = wp.max(int(wp.floor(wp.min(wp.min(a[0], b[0]), c[0]))), 0)
+        x_hi = wp.min(int(wp.ceil(wp.max(wp.max(a[0], b[0]), c[0]))), width - 1)
+        y_lo = wp.max(int(wp.floor(wp.min(wp.min(a[1], b[1]), c[1]))), 0)
+        y_hi = wp.min(int(wp.ceil(wp.max(wp.max(a[1], b[1]), c[1]))), height - 1)
+        eps = f64(-1e-9)
+        for py in range(y_lo, y_hi + 1):
+            cy = f64(py) + f64(0.5)
+            for px in range(x_lo, x_hi + 1):
+                cx = f64(px) + f64(0.5)
+                w0 = ((b[1] - c[1]) * (cx - c[0]) + (c[0] - b[0]) * (cy - c[1])) / den
+                w1 = ((c[1] - a[1]) * (cx - c[0]) + (a[0] - c[0]) * (cy - c[1])) / den
+                w2 = f64(1.0) - w0 - w1
+                if w0 >= eps and w1 >= eps and w2 >= eps:
+                    z = w0 * a[2] + w1 * b[2] + w2 * c[2]
+                    p = py * width + px
+                    if stage == 0:
+                        wp.atomic_min(depth, p, z)
+                    elif stage == 1:
+                        if z == depth[p]:
+                            wp.atomic_min(winner, p, order[f])
+                    elif z == depth[p] and order[f] == winner[p]:
+                        face_id[p] = wp.int64(f)
+                        bary[p] = wp.vec3d(w0, w1, w2)
+
+    return raster_kernel
 
 
 def _camera(frame: tuple[float, float, float, float], height: int) -> tuple[float, float, float, int]:
