@@ -121,3 +121,25 @@ def test_the_surface_kernels_gradients_pass_gradcheck():
         return out.closest, out.normal, out.signed_distance
 
     assert torch.autograd.gradcheck(outputs, (points, verts))
+
+
+def test_the_surface_kernels_point_gradients_need_no_vertex_gradients():
+    """With the bodies' vertices held constant (a training pool's bodies) the backward gives the
+    points the gradients it gives them when the vertices' are asked too."""
+    faces = torch.tensor([[0, 1, 2]], dtype=torch.int32)
+    normals = (torch.tensor([[[0.0, 0.0, 1.0]]], dtype=torch.float64), torch.zeros(1, 1, 3, 3, dtype=torch.float64),
+               torch.zeros(1, 3, 3, dtype=torch.float64))
+    verts = torch.tensor([[0.0, 0.1, 0.0], [1.0, 0.0, 0.2], [0.1, 1.0, 0.0]], dtype=torch.float64)
+    zero = torch.zeros(3, dtype=torch.int32)
+    weights = torch.tensor([[0.3, -1.2, 0.7], [2.0, 0.1, -0.4], [-0.6, 0.9, 1.1]], dtype=torch.float64)
+    grads = []
+    for vertex_grads in (True, False):
+        points = torch.tensor([[0.2, 0.3, 0.5], [0.9, 0.8, 0.1], [1.5, -0.4, -0.3]], dtype=torch.float64,
+                              requires_grad=True)
+        v = verts.clone().requires_grad_(vertex_grads)
+        out = closest_surface_points(points, v, zero, zero, faces, *normals, near_tol=1e-6)
+        ((out.closest * weights).sum() + (out.normal * weights).sum() + out.signed_distance.sum()).backward()
+        assert (v.grad is not None) == vertex_grads
+        grads.append(points.grad)
+    assert grads[0].abs().sum() > 0
+    torch.testing.assert_close(grads[1], grads[0], rtol=0, atol=0)

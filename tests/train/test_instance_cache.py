@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from physdrape.model import ModelConfig
+from physdrape.physics.energy import total_energy
+from physdrape.pipeline import PosedBodies
 from physdrape.train.curves import plot_validation
 from physdrape.train.data import DataConfig, DrapeSource
-from physdrape.physics.energy import total_energy
 from physdrape.train.instances import InstanceCacheError
 from physdrape.train.loss import LossConfig, drape_loss, teacher_distance
 from physdrape.train.trainer import OptimConfig, TrainConfig, Trainer
@@ -38,6 +39,13 @@ def test_cache_holds_teacher_drapes_that_lower_the_energy_and_grows_without_chan
     contact = dict(contact_stiffness=SMALL.contact_stiffness, margin=SMALL.margin)
     start = total_energy(d.x_init, d.cloth, d.bodies, d.body_index, **contact)
     assert (total_energy(sample.teacher, d.cloth, d.bodies, d.body_index, **contact) < start).all()
+    # every sample is draped on the pool's surface, built once: the same bodies as a surface of
+    # the sample's own bodies, whose energies the teacher lowered
+    pool_surface = source.posed_pool().surface(source.dtype, "cpu")
+    assert d.bodies is pool_surface and source.make_batch([5]).drape.bodies is pool_surface
+    own = PosedBodies(source.pool.state(d.body_index.unique().tolist())).surface(source.dtype, "cpu")
+    own_index = torch.searchsorted(d.body_index.unique(), d.body_index)
+    torch.testing.assert_close(total_energy(d.x_init, d.cloth, own, own_index, **contact), start, rtol=0, atol=0)
     first = (tmp_path / "cache" / "train" / "000000.safetensors").read_bytes()
     DrapeSource(replace(data, instance_count=3), model=SMALL, body=anny_body)
     assert (tmp_path / "cache" / "train" / "000000.safetensors").read_bytes() == first

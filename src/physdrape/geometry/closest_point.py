@@ -383,18 +383,22 @@ class _SurfacePoints(torch.autograd.Function):
                                "differentiated again (create_graph=True, torch.func.hessian)")
         points, verts, body, face, faces, *normals = ctx.saved_tensors
         wp = kernels()["wp"]
-        grad_points, grad_verts = torch.zeros_like(points), torch.zeros_like(verts)
+        grad_points = torch.zeros_like(points)
+        # the bodies' vertices get an adjoint only when asked: a batch of many bodies (a training
+        # pool) would otherwise fill one of all their vertices at every backward
+        grad_verts = torch.zeros_like(verts) if ctx.needs_input_grad[1] else None
         grads = [torch.zeros_like(points) if g is None else g.to(torch.float64).contiguous()
                  for g in (grad_closest, grad_bary, grad_normal)]
         grad_distance = (torch.zeros(points.shape[0], dtype=torch.float64, device=points.device)
                          if grad_distance is None else grad_distance.to(torch.float64).contiguous())
         flags = torch.empty(points.shape[0], dtype=torch.int32, device=points.device)
-        scratch = tuple(torch.zeros_like(n) for n in normals)  # the pseudo-normals' adjoints, discarded
         if points.shape[0]:
             with torch_stream(points.device):
                 inputs = _surface_inputs(wp, points, verts, body, face, ctx.num_verts, faces, normals, ctx.near_tol)
-                adj_inputs = _surface_inputs(wp, grad_points, grad_verts, body, face, ctx.num_verts, faces, scratch,
-                                             ctx.near_tol)
+                # a null adjoint array (None) is skipped by the kernel's adjoint: the pseudo-normals'
+                # adjoints are not wanted (they count as constants), nor the vertices' unless asked
+                adj_inputs = _surface_inputs(wp, grad_points, grad_verts, body, face, ctx.num_verts, faces,
+                                             (None, None, None), ctx.near_tol)
                 wp.launch(kernels()["surface"], dim=points.shape[0], device=wp.device_from_torch(points.device),
                           inputs=inputs, outputs=[*(_vec3(wp, torch.empty_like(points)) for _ in range(3)),
                                                   launch_arg(torch.empty_like(grad_distance), wp.float64),
@@ -406,10 +410,14 @@ class _SurfacePoints(torch.autograd.Function):
 
 
 def _surface_inputs(wp, points, verts, body, face, num_verts, faces, normals, near_tol) -> list:
+    """The surface kernel's inputs in its order; a None array passes a null array."""
+    def vec3(t: Tensor | None):
+        return None if t is None else _vec3(wp, t)
+
     face_normals, edge_normals, vertex_normals = normals
-    return [_vec3(wp, points), _vec3(wp, verts), launch_arg(body, wp.int32), launch_arg(face, wp.int32),
-            int(num_verts), _int2d(wp, faces), _vec3(wp, face_normals), _vec3(wp, edge_normals),
-            _vec3(wp, vertex_normals), float(near_tol)]
+    return [vec3(points), vec3(verts), launch_arg(body, wp.int32), launch_arg(face, wp.int32),
+            int(num_verts), _int2d(wp, faces), vec3(face_normals), vec3(edge_normals), vec3(vertex_normals),
+            float(near_tol)]
 
 
 def closest_surface_points(points: Tensor, verts: Tensor, body: Tensor, face: Tensor, faces: Tensor,
