@@ -10,8 +10,8 @@ X_init and teacher drape were written once, and a sample costs no skinning at al
 
 The pool's bodies are one `PosedBodies`, their surfaces (BVHs, doubtful faces) built once for
 the whole pool on first use, and every sample's garments are draped on their pool bodies there:
-a step costs the network and the physics, not a BVH build per sampled body (about 25 ms each
-on a CPU core, with the doubtful faces another 20).
+a step costs the network and the physics, not a BVH build and a search for the doubtful faces
+per sampled body.
 """
 
 from __future__ import annotations
