@@ -152,7 +152,9 @@ _FIX = ("point to another checkpoint, re-export it from its run directory (pytho
 
 def load_model(path: str | os.PathLike, *, variant: Variant | None = None) -> tuple[PhysDrape, dict]:
     """The model of a checkpoint (directory, or a run directory: its latest), in eval mode, its
-    network in the dtype it was trained in, switched to `variant` when given.
+    network in the dtype it was trained in, switched to `variant` when given, else to the variant
+    the checkpoint was exported to run as (config.json's "variant", `export_model`), else the one
+    it was trained as.
 
     Returns (model, info {"path", "step", "variant", "eval_steps", "dtype"}).
     """
@@ -165,6 +167,12 @@ def load_model(path: str | os.PathLike, *, variant: Variant | None = None) -> tu
         model_cfg = from_mapping(ModelConfig, train["model"], where=f"{path / CONFIG_FILE}:train.model")
     except ConfigError as exc:
         raise CheckpointError(f"{exc}; the checkpoint was written by another PhysDrape version or edited: {_FIX}") from None
+    if variant is None and config.get("variant") is not None:
+        try:
+            variant = Variant(config["variant"])
+        except ValueError:
+            raise CheckpointError(f"{path / CONFIG_FILE}: variant {config['variant']!r} is not one of "
+                                  f"{[v.value for v in Variant]}; {_FIX}") from None
     if variant is not None:
         model_cfg = replace(model_cfg, variant=variant)
     dtype = getattr(torch, str(train.get("dtype", "float32")), None)
@@ -191,14 +199,22 @@ def read_train_state(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
     return load_file(tensors), json.loads(meta.read_text())
 
 
-def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike) -> Path:
+def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike, *,
+                 variant: Variant | str | None = None) -> Path:
     """Copy a checkpoint's model (model.safetensors + config.json, no training state) to out_dir,
-    atomically: the form in which a trained model is shipped and loaded for inference."""
+    atomically: the form in which a trained model is shipped and loaded for inference.
+
+    variant: the variant the exported model runs as (`load_model`'s default), e.g. "full" for a
+    network trained alone (GNN-only) that is to drape through the solver and the handler; the
+    config's train section keeps the variant it was trained as. None: as trained."""
     source = resolve(checkpoint)
     _, config = read_checkpoint(source)  # validates that both files are readable
+    extra = {"exported_from": source.name}
+    if variant is not None:
+        extra["variant"] = Variant(variant).value
     with atomic_directory(out_dir) as tmp:
         shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
-        (tmp / "config.json").write_text(json.dumps({**config, "exported_from": source.name}, indent=2, sort_keys=True))
+        (tmp / "config.json").write_text(json.dumps({**config, **extra}, indent=2, sort_keys=True))
         for path in (tmp / "model.safetensors", tmp / "config.json"):
             path.chmod(0o644)  # shipped inside the package: readable by everyone
     return Path(out_dir)

@@ -11,7 +11,7 @@ import yaml
 
 from physdrape import checkpoint as ckpt
 from physdrape.config_io import ConfigError, to_mapping
-from physdrape.model import ModelConfig
+from physdrape.model import ModelConfig, Variant
 from physdrape.train.recipe import load_recipe, run_recipe
 from physdrape.train.synthetic import SyntheticSource
 from physdrape.train.trainer import OptimConfig, TrainConfig
@@ -88,7 +88,8 @@ def test_an_interrupted_stage_resumes(recipe, tmp_path):
     ("stages: []", "at least one stage"),
     ("stages: [{name: a}]", "`name`, `config` and optionally `until`"),
     ("stages: [{name: ../a, config: c.yaml}]", "plain directory name"),
-    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m}", "exactly model_out and record_out"),
+    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m}", "model_out and record_out"),
+    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, variant: gnn_only}", "ship.variant"),
     ("steps: 3", "a list `stages`"),
 ])
 def test_a_bad_recipe_is_named(tmp_path, text, pattern):
@@ -117,3 +118,27 @@ def test_until_stops_a_stage_on_its_full_schedule(tmp_path):
     # the learning rate at the stop is that of the 4-step schedule, not of a 2-step one
     lines = [json.loads(line) for line in (tmp_path / "run" / "one" / "metrics.jsonl").read_text().splitlines()]
     assert lines[-1]["step"] == 2 and lines[-1]["lr"] == pytest.approx(1e-3 * 0.1 ** (2 / 4))
+
+
+def test_a_network_trained_alone_ships_to_drape_through_the_solver(tmp_path):
+    """ship.variant: the last stage trained GNN-only, shipped to run as the full model; its record
+    keeps the variant it was trained as, and an explicit variant still wins when loading."""
+    only = _config(tmp_path / "a.yaml", solver="two_level", steps=2, seed=1)
+    text = yaml.safe_load(only.read_text())
+    text["model"]["variant"] = "gnn"
+    only.write_text(yaml.safe_dump(text))
+    path = tmp_path / "recipe.yaml"
+    path.write_text(yaml.safe_dump({"stages": [{"name": "gnn", "config": str(only)}],
+                                    "ship": {"model_out": str(tmp_path / "model"), "record_out": str(tmp_path / "record"),
+                                             "variant": "full"}}))
+    run_recipe(path, tmp_path / "run", source=source, command="c", log=lambda _: None)
+    model, info = ckpt.load_model(tmp_path / "model")
+    assert info["variant"] == "full" and model.config.variant.uses_solver and model.config.variant.uses_handler
+    assert ckpt.load_model(tmp_path / "run" / "gnn")[1]["variant"] == "gnn"  # the run itself: as trained
+    assert ckpt.load_model(tmp_path / "model", variant=Variant.GNN_ONLY)[1]["variant"] == "gnn"
+    _, config = ckpt.read_checkpoint(tmp_path / "model")
+    assert config["train"]["model"]["variant"] == "gnn" and config["variant"] == "full"
+    config["variant"] = "everything"
+    (tmp_path / "model" / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ckpt.CheckpointError, match="variant 'everything'"):
+        ckpt.load_model(tmp_path / "model")

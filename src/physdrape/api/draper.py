@@ -118,9 +118,8 @@ class Draper:
             hint = "the bundled model is not installed" if checkpoint is None else f"{path} does not exist"
             raise DrapeError(
                 f"no PhysDrape model: {hint}. Train one with `physdrape train --recipe configs/recipes/shipped.yaml "
-                f"--run-dir runs/shipped` and pass `--checkpoint runs/shipped/full` (API: "
-                f"Draper(checkpoint=...)), or copy a checkpoint directory (model.safetensors + config.json) to "
-                f"{ckpt.bundled_model()}")
+                f"--run-dir runs/shipped`, which writes it to {ckpt.bundled_model()}, or pass an exported model "
+                f"directory (model.safetensors + config.json) with --checkpoint (API: Draper(checkpoint=...))")
         try:
             self.model, _ = ckpt.load_model(path)
         except ckpt.CheckpointError as exc:

@@ -8,6 +8,7 @@ A recipe is a YAML file::
     ship:                        # optional: where the last stage's model and record go
       model_out: src/physdrape/assets/models/cpu_default
       record_out: docs/training/shipped
+      variant: full              # optional: the variant the shipped model runs as (default: as trained)
 
 `physdrape train --recipe FILE --run-dir DIR [--resume]` trains stage k into DIR/<name>, with
 ``optim.init_from`` set to DIR/<previous name> (whatever the stage's config says), skips stages
@@ -17,7 +18,8 @@ full ``optim.steps`` (a run stopped there by hand is the same run). DIR/recipe.j
 command, and per stage its config, seed, steps and the wall time spent in it (summed over its
 resumed segments, as its metrics.jsonl logged them). With ``ship``, the last stage's model is exported and
 every stage's training record written into record_out/<stage name> (`physdrape.train.ship`), with
-the recipe's record beside them.
+the recipe's record beside them; ``variant`` ships it to run as that variant (`export_model`): a
+network trained alone (GNN-only) shipped to drape through the solver and the handler.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from pathlib import Path
 from physdrape.atomic import write_text
 from physdrape.checkpoint import export_model, latest_checkpoint
 from physdrape.config_io import ConfigError, load_config, read_yaml
+from physdrape.model import Variant
 from physdrape.train.trainer import SampleSource, TrainConfig, Trainer
 
 
@@ -45,11 +48,13 @@ class Stage:
 
 @dataclass(frozen=True)
 class Recipe:
-    """Stages in order and, optionally, where to ship the last one (model dir, record dir)."""
+    """Stages in order and, optionally, where to ship the last one (model dir, record dir) and
+    the variant it runs as there (None: as trained)."""
 
     stages: tuple[Stage, ...]
     model_out: Path | None = None
     record_out: Path | None = None
+    variant: str | None = None
 
 
 def load_recipe(path: str | Path) -> Recipe:
@@ -73,10 +78,13 @@ def load_recipe(path: str | Path) -> Recipe:
     if not stages or len({s.name for s in stages}) != len(stages):
         raise ConfigError(f"{path}: give at least one stage, with distinct names")
     ship = data.get("ship") or {}
-    if set(ship) - {"model_out", "record_out"} or (ship and len(ship) != 2):
-        raise ConfigError(f"{path}: `ship` takes exactly model_out and record_out")
+    if set(ship) - {"model_out", "record_out", "variant"} or (ship and not {"model_out", "record_out"} <= set(ship)):
+        raise ConfigError(f"{path}: `ship` takes model_out and record_out, and optionally variant")
+    variant = ship.get("variant")
+    if variant is not None and variant not in [v.value for v in Variant]:
+        raise ConfigError(f"{path}: ship.variant must be one of {[v.value for v in Variant]}, got {variant!r}")
     return Recipe(tuple(stages), Path(ship["model_out"]) if ship else None,
-                  Path(ship["record_out"]) if ship else None)
+                  Path(ship["record_out"]) if ship else None, variant)
 
 
 def stage_configs(recipe: Recipe, run_dir: Path) -> list[TrainConfig]:
@@ -146,7 +154,7 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
     if recipe.model_out is not None:
         from physdrape.train.ship import write_record
 
-        export_model(latest_checkpoint(run_dir / recipe.stages[-1].name), recipe.model_out)
+        export_model(latest_checkpoint(run_dir / recipe.stages[-1].name), recipe.model_out, variant=recipe.variant)
         for stage in recipe.stages:
             write_record(run_dir / stage.name, recipe.record_out / stage.name, command=command)
         write_text(recipe.record_out / "recipe.json", json.dumps(record, indent=2) + "\n")
