@@ -155,3 +155,50 @@ def test_a_distance_bound_leaves_out_only_what_is_pushed_by_nothing(sphere):
     torch.testing.assert_close(outs[1][0], outs[0][0], rtol=0, atol=1e-15)
     for got, want in zip(outs[1][1], outs[0][1]):
         torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def overlapping_spheres():
+    """Two spheres of radius RADIUS whose centres are 1.5 RADIUS apart, as one triangle soup:
+    a body with two parts sunk into each other (the surface of each inside the other stays)."""
+    a = trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
+    b = a.copy()
+    b.apply_translation([1.5 * RADIUS, 0.0, 0.0])
+    verts = np.concatenate([a.vertices, b.vertices])
+    faces = np.concatenate([a.faces, b.faces + len(a.vertices)])
+    return BodySurface(torch.tensor(verts), torch.tensor(faces))
+
+
+def test_a_vertex_in_the_overlap_of_two_body_parts_ends_outside_both(overlapping_spheres):
+    body = overlapping_spheres
+    # 4 mm inside each sphere, near the rim of their overlap: the closest triangle is one of the
+    # first sphere's, buried in the second, and a push along its normal lands inside the second
+    x = torch.tensor([[0.75 * RADIUS, 0.6 * RADIUS, 0.0]], dtype=torch.float64)
+    body_index = torch.zeros(1, dtype=torch.int64)
+    query = body.query(x, body_index=body_index)
+    assert bool(query.inside[0])
+    normal_push = x + (2e-3 - query.signed_distance)[:, None] * query.normal
+    assert bool(body.query(normal_push, body_index=body_index).inside[0])
+    handler = CollisionHandler(margin=2e-3).double()
+    x = x.requires_grad_(True)
+    out = handler(x, body, body_index)
+    after = body.query(out.detach(), body_index=body_index)
+    assert not bool(after.inside[0]) and float(after.signed_distance[0]) >= 2e-3
+    assert float((out - x).detach().norm()) < 0.02  # the shortest way out, not across the body
+    (grad,) = torch.autograd.grad(out.sum(), x)
+    assert torch.isfinite(grad).all()
+
+
+def test_a_face_in_the_overlap_of_two_body_parts_ends_with_its_centroid_outside(overlapping_spheres):
+    body = overlapping_spheres
+    centre = torch.tensor([0.75 * RADIUS, 0.6 * RADIUS, 0.0], dtype=torch.float64)
+    angles = torch.tensor([0.0, 2 * np.pi / 3, 4 * np.pi / 3], dtype=torch.float64)
+    x = centre + 2e-3 * torch.stack([torch.zeros_like(angles), torch.cos(angles), torch.sin(angles)], dim=1)
+    body_index = torch.zeros(3, dtype=torch.int64)
+    faces = torch.tensor([[0, 1, 2]])
+    assert bool(body.query(centre[None], body_index=body_index[:1]).inside[0])
+    handler = CollisionHandler(margin=2e-3, centroid_margin=5e-4).double()
+    with torch.no_grad():
+        out = handler(x, body, body_index, faces=faces)
+    assert not bool(body.query(out.mean(0, keepdim=True), body_index=body_index[:1]).inside[0])
+    assert not bool(body.query(out, body_index=body_index).inside.any())

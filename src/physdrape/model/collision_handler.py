@@ -1,6 +1,6 @@
 """The learnable collision handler (paper Eq. 11): push vertices out along the body normal, then
-the faces whose centroids still dip into the body, then the outer layers that a push drove into
-the layer under them."""
+the faces whose centroids still dip into the body, then what those pushes left inside where two
+parts of the body overlap, then the outer layers that a push drove into the layer under them."""
 
 from __future__ import annotations
 
@@ -30,6 +30,10 @@ class CollisionHandler(nn.Module):
     n_f. One pass: a lone face's centroid ends at ε_c; where pushed faces share vertices and
     their normals differ, a centroid can end between 0 and ε_c. Pushes are outward, so no vertex
     comes closer than ε.
+
+    Where two parts of a posed body interpenetrate, a push along the normal can land inside the
+    other part; what was inside before the handler is checked again after these passes and moved
+    out by the shortest of a set of offsets (`_free_stuck`).
 
     A multi-piece garment's layer order (`physics.layers`) is the last pass (when `layers` are
     given): a push that moves an inner piece's vertex out toward the piece over it would leave
@@ -75,26 +79,114 @@ class CollisionHandler(nn.Module):
                                           bound=None if bound is None else bound.part(0, num_verts))
         push = (delta * (self.margin - query.signed_distance).clamp_min(0.0))[:, None] * query.normal
         x = x + push if rows is None else x.index_add(0, rows, push)
+        suspects = torch.nonzero(query.inside).flatten()  # inside before the push
+        suspects = suspects if rows is None else rows[suspects]
         if faces is not None and self.centroid_margin > 0:
-            x = self._push_centroids(x, faces, bodies, body_index,
-                                     None if bound is None else bound.part(num_verts, num_verts + faces.shape[0]))
+            x, dipped = self._push_centroids(x, faces, bodies, body_index,
+                                             None if bound is None else bound.part(num_verts, num_verts + faces.shape[0]))
+            suspects = torch.cat([suspects, faces[dipped].reshape(-1)])
+        if suspects.numel():
+            x = self._free_stuck(x, faces, bodies, body_index, suspects)
         if layers is not None and len(layers.pairs):
             x = push_outer_out(x, layers, allowed=layer_shortfall(before, layers))
         return x
 
     def _push_centroids(self, x: Tensor, faces: Tensor, bodies: BodySurface, body_index: Tensor,
-                        bound: DistanceBound | None) -> Tensor:
+                        bound: DistanceBound | None) -> tuple[Tensor, Tensor]:
+        """The centroid pass; also the faces (int64 rows of `faces`) whose centroids were inside."""
         centroids, owner = x[faces].mean(dim=1), body_index[faces[:, 0]]
         rows, query = bodies.query_within(centroids, self.centroid_margin, body_index=owner, bound=bound)
+        inside = torch.nonzero(query.inside).flatten()
         if rows is not None:
-            faces = faces[rows]
+            faces, inside = faces[rows], rows[inside]
         push = (self.centroid_margin - query.signed_distance).clamp_min(0.0)
         hit = push > 0
         if not bool(hit.any()):
-            return x
+            return x, inside
         verts = faces[hit].reshape(-1)
         p = push[hit].repeat_interleave(3)
         size = x.new_zeros(x.shape[0]).scatter_reduce(0, verts, p, "amax", include_self=True)
         weighted = (push[hit, None] * query.normal[hit]).repeat_interleave(3, dim=0)
         direction = F.normalize(torch.zeros_like(x).index_add(0, verts, weighted), dim=1)
-        return x + size[:, None] * direction
+        return x + size[:, None] * direction, inside
+
+    def _free_stuck(self, x: Tensor, faces: Tensor | None, bodies: BodySurface, body_index: Tensor,
+                    suspects: Tensor) -> Tensor:
+        """Move out what the passes along the body normal left inside: the vertices `suspects`
+        (int64; those that were inside before the handler, and those of faces whose centroids
+        were) and, when `faces` are given, the faces around them.
+
+        Where two parts of a posed body interpenetrate (a forearm sunk into the upper arm), the closest
+        body triangle of a point in the overlap can be one buried in the other part, and a push
+        along its normal lands inside that part (repeating the push oscillates between the
+        two). A stuck vertex instead takes the shortest offset among `EXIT_DIRECTIONS` ×
+        `EXIT_RADII` that puts it at least ε outside (`exit_offsets`); a stuck face's three
+        vertices take the offset that puts its centroid ε_c outside. The offsets are constants
+        in the gradient (x* stays differentiable in x). Up to `FREE_ROUNDS` rounds, each checking
+        the vertices moved and the faces around them again.
+        """
+        candidates = torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
+        candidates[suspects] = True
+        for _ in range(FREE_ROUNDS):
+            rows = torch.nonzero(candidates).flatten()
+            with torch.no_grad():
+                stuck = rows[bodies.query(x[rows].detach(), body_index=body_index[rows]).inside]
+                shift = torch.zeros_like(x)
+                if stuck.numel():
+                    shift[stuck] = exit_offsets(x[stuck].detach(), bodies, body_index[stuck], self.margin)
+                if faces is not None:
+                    near = faces[candidates[faces].any(dim=1)]
+                    centroids = x[near].detach().mean(dim=1)
+                    flat = near[bodies.query(centroids, body_index=body_index[near[:, 0]]).inside]
+                    if flat.shape[0]:
+                        offset = exit_offsets(x[flat].detach().mean(dim=1), bodies, body_index[flat[:, 0]],
+                                              self.centroid_margin or self.margin)
+                        shift.index_add_(0, flat.reshape(-1), offset.repeat_interleave(3, dim=0))
+                        stuck = torch.cat([stuck, flat.reshape(-1)])
+            if not stuck.numel():
+                break
+            x = x + shift
+            candidates = torch.zeros_like(candidates)
+            candidates[stuck] = True
+        return x
+
+
+#: Rounds of `CollisionHandler._free_stuck`.
+FREE_ROUNDS = 3
+#: Offsets [m] tried for a point stuck inside the body, shortest first.
+EXIT_RADII = (2e-3, 4e-3, 8e-3, 16e-3, 32e-3)
+
+
+def _exit_directions() -> Tensor:
+    """The 42 unit directions of a once-subdivided icosahedron (float64)."""
+    t = (1.0 + 5.0 ** 0.5) / 2.0
+    base = torch.tensor([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t],
+                         [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=torch.float64)
+    base = F.normalize(base, dim=1)
+    close = (base @ base.T) > 0.4  # the 30 edges: neighbours at 63.4°
+    i, j = torch.nonzero(torch.triu(close, diagonal=1), as_tuple=True)
+    return torch.cat([base, F.normalize(base[i] + base[j], dim=1)])
+
+
+EXIT_DIRECTIONS = _exit_directions()
+
+
+@torch.no_grad()
+def exit_offsets(points: Tensor, bodies: BodySurface, body_index: Tensor, clearance: float) -> Tensor:
+    """For each point (M, 3) inside the body, the shortest offset (M, 3) [m] among
+    `EXIT_DIRECTIONS` × `EXIT_RADII` that puts it at least `clearance` outside; where none does,
+    the one that ends farthest out."""
+    dirs = EXIT_DIRECTIONS.to(points)
+    radii = torch.tensor(EXIT_RADII, dtype=points.dtype, device=points.device)
+    steps = (radii[:, None, None] * dirs[None]).reshape(-1, 3)  # radius-major: shortest first
+    trial = points[:, None, :] + steps[None]
+    owner = body_index[:, None].expand(-1, steps.shape[0]).reshape(-1)
+    depth = bodies.query(trial.reshape(-1, 3), body_index=owner).signed_distance
+    depth = depth.reshape(points.shape[0], len(EXIT_RADII), dirs.shape[0])
+    clear = depth >= clearance
+    reached = clear.any(dim=2)  # (M, radii)
+    # the shortest radius with a clear trial, and there the direction that ends farthest out
+    shortest = reached.to(torch.int8).argmax(dim=1)
+    at = depth[torch.arange(points.shape[0], device=points.device), shortest]
+    best = shortest * dirs.shape[0] + at.argmax(dim=1)
+    return steps[torch.where(reached.any(dim=1), best, depth.flatten(1).argmax(dim=1))]
