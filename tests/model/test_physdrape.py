@@ -249,3 +249,36 @@ def test_physics_only_is_the_model_with_a_silent_network(two_tubes, solver):
     with torch.no_grad():
         assert not torch.equal(model(batch, steps=4).x, alone.x)
         torch.testing.assert_close(model.physics_only(batch, steps=4).x, alone.x, rtol=0, atol=0)
+
+
+def test_network_move_keeps_the_layer_order():
+    """Where the network's move drives an outer piece into the piece under it, the outer vertex
+    goes back out: the move adds nothing to a pair's layer-order shortfall over X_init's; a
+    single-piece batch is left as the network moved it."""
+    from dataclasses import replace
+
+    from physdrape.geometry.garment import Garment
+    from physdrape.physics.layers import LayerOrder, layer_shortfall
+
+    inner, outer = tube(4, 12, 0.14, dtype=torch.float64), tube(4, 12, 0.16, dtype=torch.float64)
+    verts = torch.cat([inner.rest, outer.rest])
+    faces = torch.cat([inner.faces, outer.faces + inner.num_verts])
+    garment = Garment.from_mesh(verts, faces, name="two_layers", dtype=torch.float64)
+    inp = make_input([garment], [0.1], dtype=torch.float64)
+    n = inner.num_verts
+    pairs = torch.stack([torch.arange(n) + n, torch.arange(n)], dim=1)
+    radial = inp.x_init[:n] * torch.tensor([1.0, 0.0, 1.0], dtype=torch.float64)
+    normal = torch.nn.functional.normalize(radial, dim=1)
+    layers = LayerOrder.build(pairs, normal, separation=torch.full((n,), 0.02, dtype=torch.float64))
+    layered = replace(inp, cloth=replace(inp.cloth, layers=layers))
+    model = PhysDrape(ModelConfig(variant="gnn")).double()
+    inward = torch.zeros(2 * n, 6, dtype=torch.float64)
+    inward[n:, :3] = -3.0 * normal  # 3 cm toward the axis: through the inner tube
+    model.gnn.forward = lambda *args, **kwargs: inward
+    crossed = model(inp).x_gnn
+    assert float(layer_shortfall(crossed, layers).min()) > 0.01  # 1 cm through the inner tube
+    assert float(layer_shortfall(layered.x_init, layers).max()) == 0.0
+    kept = model(layered).x_gnn
+    start = layer_shortfall(layered.x_init, layers)
+    assert bool((layer_shortfall(kept, layers) <= start + 1e-9).all())
+    torch.testing.assert_close(kept[:n], crossed[:n])  # the inner piece moves as the network moved it

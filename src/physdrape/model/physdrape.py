@@ -18,6 +18,7 @@ from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
 from physdrape.model.stretching_solver import StretchingSolver, clip_moves
 from physdrape.physics.cloth import Cloth
+from physdrape.physics.layers import layer_shortfall, push_outer_out
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,12 @@ class PhysDrape(nn.Module):
             else:
                 delta_x = cfg.displacement_scale * out[:, :3]
             x_gnn = x_gnn + delta_x
+        layers = batch.cloth.layers
+        if layers is not None and len(layers.pairs):
+            # the network sees each piece alone: where its move drove an outer piece into the one
+            # under it, the outer vertex goes back out, so the move adds nothing to a pair's
+            # layer-order shortfall over X_init's (as the collision handler's layer pass)
+            x_gnn = push_outer_out(x_gnn, layers, allowed=layer_shortfall(batch.x_init, layers))
         f_hat = out[:, 3:] * weight[:, None]  # the last pass's
         return self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)
 
