@@ -9,7 +9,8 @@ Optionally the CC0 MakeHuman garments are evaluated the same way, as a second se
 
 Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switch of the model):
 
-- ``gnn_only``: X = X_init + Δx (variant GNN_ONLY: no solver, no handler);
+- ``gnn_only``: X = X_init + Δx (variant GNN_ONLY: no solver, no handler; a multi-piece garment's
+  outer vertices that Δx drove into the piece under them pushed back out, part of the network's move);
 - ``post_col``: GNN → stretching solver (T = eval_steps) → collision handler with δ = 1 applied
   as post-processing (variant POST_COL; the paper's Post-Col is a model *trained* without the
   handler — here it is the full model's weights with the learned δ replaced by 1);
@@ -90,7 +91,8 @@ class RowSpec:
 
 
 MAIN_ROWS = (
-    RowSpec("gnn_only", "GNN only", Variant.GNN_ONLY, None, "X_init + Δx of the GNN (no solver, no handler)"),
+    RowSpec("gnn_only", "GNN only", Variant.GNN_ONLY, None, "X_init + Δx of the GNN (no solver, no handler; a multi-piece garment's outer vertices that Δx "
+            "drove into the piece under them pushed back out, as every row's network move)"),
     RowSpec("post_col", "Post-Col", Variant.POST_COL, None,
             "GNN → solver (T = eval_steps) → handler with δ = 1 as post-processing (full model's weights, learned δ replaced by 1)"),
     RowSpec("physdrape_t3", "PhysDrape (T=3)", Variant.FULL, 3, "GNN → solver T = 3 → handler (learned δ)"),

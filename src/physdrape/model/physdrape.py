@@ -50,9 +50,10 @@ class DrapeInput:
 
 @dataclass(frozen=True)
 class DrapeOutput:
-    """x: the drape X* [m] (ΣV, 3); x_gnn: X_init + Δx; f_hat: f̂ [N] (ΣV, 3); trace: solver states;
-    bound: the `DistanceBound` of the solver's last full body query (vertices, then face
-    centroids; None without one), for later queries of x to skip what is far from the body."""
+    """x: the drape X* [m] (ΣV, 3); x_gnn: X_init + Δx (with the layer order kept, `PhysDrape.forward`);
+    f_hat: f̂ [N] (ΣV, 3); trace: solver states; bound: the `DistanceBound` of the solver's last
+    full body query (vertices, then face centroids; None without one), for later queries of x to
+    skip what is far from the body."""
 
     x: Tensor
     x_gnn: Tensor
@@ -130,7 +131,11 @@ class PhysDrape(nn.Module):
         self.edge_normalizer.accumulate(edges)
 
     def forward(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
-        """Drape a batch. steps: solver steps T (default: train_steps in training, else eval_steps)."""
+        """Drape a batch. steps: solver steps T (default: train_steps in training, else eval_steps).
+
+        The network's move X_init + Δx keeps a multi-piece garment's layer order
+        (`physics.layers.push_outer_out`): the network sees each piece alone (no graph edge joins
+        two pieces), so its move can drive an outer piece into the one under it."""
         cfg = self.config
         # forces in units of each vertex's weight: the support a vertex needs is of that order
         weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
