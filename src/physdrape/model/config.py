@@ -98,6 +98,12 @@ class ModelConfig:
     passes before it moved (its internal forces, normals, body distances and edges there) and
     adds its move, so it sees and corrects the residual of the passes before it; f̂ is the last
     pass's. Each pass costs a network evaluation and a body query.
+    step_inputs: the network also reads, per vertex, the two parts of the two-level solver's
+    first step direction at its input positions (`StretchingSolver.step_parts`): the block-Jacobi
+    move K⁻¹F (local) and the coarse correction's move (the garment sliding, riding up or
+    settling as a whole on smooth patches), six more node features. Message passing alone sees
+    the forces, which the stiff local strain dominates; the coarse move says where the garment
+    as a whole is pulled. Needs the two_level solver.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -135,6 +141,7 @@ class ModelConfig:
     force_scale: float = 1.0
     max_move: float = 0.03
     passes: int = 1
+    step_inputs: bool = False
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
 
@@ -147,6 +154,9 @@ class ModelConfig:
         if self.displacement is Displacement.PRECONDITIONED and self.solver is not SolverKind.TWO_LEVEL:
             raise ValueError("ModelConfig.displacement 'preconditioned' uses the two_level solver's preconditioner; "
                              f"set solver: two_level (got {self.solver.value})")
+        if self.step_inputs and self.solver is not SolverKind.TWO_LEVEL:
+            raise ValueError("ModelConfig.step_inputs reads the two_level solver's first step; set solver: two_level "
+                             f"(got {self.solver.value})")
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")

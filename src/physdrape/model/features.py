@@ -13,6 +13,8 @@ from physdrape.tensor_memo import IdentityMemo
 #: Material inputs are logged after this floor (λ may be 0 for a fabric without area stiffness).
 MATERIAL_FLOOR = 1e-12
 NODE_FEATURES = 11  # normal (3), signed distance (1), f_int (3), log μ, log λ, log k_bend, log m_i
+#: With `ModelConfig.step_inputs`: the block-Jacobi move (3) and the coarse move (3) of the solver's first step.
+STEP_FEATURES = 6
 EDGE_FEATURES = 8  # x_ij (3), |x_ij| (1), rest x⁰_ij (3), l⁰_ij (1)
 
 

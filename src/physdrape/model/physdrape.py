@@ -13,7 +13,7 @@ from physdrape.geometry.garment import GarmentBatch, GraphLevels
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model.collision_handler import CollisionHandler
 from physdrape.model.config import Displacement, ModelConfig, Variant
-from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, edge_features, node_features
+from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, STEP_FEATURES, edge_features, node_features
 from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
 from physdrape.model.stretching_solver import StretchingSolver, clip_moves
@@ -83,11 +83,12 @@ class PhysDrape(nn.Module):
     def __init__(self, config: ModelConfig = ModelConfig()) -> None:
         super().__init__()
         self.config = config
-        self.node_normalizer = Normalizer(NODE_FEATURES, max_accumulations=config.normalizer_accumulations)
+        node_in = NODE_FEATURES + (STEP_FEATURES if config.step_inputs else 0)
+        self.node_normalizer = Normalizer(node_in, max_accumulations=config.normalizer_accumulations)
         edge_in = EDGE_FEATURES + (config.levels + 1 if config.levels else 0)
         self.edge_normalizer = Normalizer(edge_in, max_accumulations=config.normalizer_accumulations)
         self.gnn = EncodeProcessDecode(
-            NODE_FEATURES, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
+            node_in, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
             levels=config.levels, zero_init_output=config.zero_init_output,
         )
         self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
@@ -113,11 +114,17 @@ class PhysDrape(nn.Module):
 
     def graph_inputs(self, batch: DrapeInput, x: Tensor | None = None) -> tuple[Tensor, Tensor, GraphLevels]:
         """Raw (un-normalised) node and edge features at x (default X_init), in the network's
-        dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels)."""
+        dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels);
+        with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x."""
         x = batch.x_init if x is None else x
         query = batch.bodies.query(x, body_index=batch.body_index)
         net_dtype = self.gnn.decoder[0].weight.dtype
-        nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance).to(net_dtype)
+        nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)
+        if self.config.step_inputs:
+            local, coarse = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies,
+                                                   body_index=batch.body_index)
+            nodes = torch.cat([nodes, local.to(nodes.dtype), coarse.to(nodes.dtype)], dim=-1)
+        nodes = nodes.to(net_dtype)
         levels = self.config.levels
         graph = batch.garments.graph_levels(levels)
         edges = edge_features(x, batch.garments, graph.edge_index, graph.level, levels)

@@ -273,15 +273,33 @@ class StretchingSolver(nn.Module):
 
         C is built once and held constant: the map is differentiable in its argument, not in x.
         """
+        _, inverse, coarse = self._first_step(x, cloth, bodies, body_index)
+        return partial(_precondition, inverse, coarse)
+
+    @torch.no_grad()
+    def step_parts(self, x: Tensor, cloth: Cloth, *, bodies: BodySurface | None = None,
+                   body_index: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """The two parts of a first two-level step's direction C F at x (ΣV, 3) [m], F = −∇Φ
+        without f̂ (body contact on planes queried at x; bodies / body_index as in `forward`):
+        the block-Jacobi move K⁻¹F and the coarse correction's move P (Pᵀ K P)⁻¹ Pᵀ F, each
+        (ΣV, 3) [m], each vertex's clipped to `max_step` as a step's (a patch out of the body's
+        reach has next to no coarse stiffness: its move under gravity alone is unbounded), not
+        differentiated."""
+        force, inverse, coarse = self._first_step(x, cloth, bodies, body_index)
+        return self._clip((inverse @ force.unsqueeze(-1)).squeeze(-1)), self._clip(coarse.solve(force))
+
+    def _first_step(self, x: Tensor, cloth: Cloth, bodies: BodySurface | None,
+                    body_index: Tensor | None) -> tuple[Tensor, Tensor, CoarseSpace]:
+        """F at x, the inverse stiffness blocks and the coarse space factored at x."""
         if self.kind is not SolverKind.TWO_LEVEL:
             raise ValueError(f"the preconditioner belongs to the two_level solver; this solver is {self.kind.value}")
         problem = self._relaxation(cloth, None)
         if bodies is not None:
             problem.requery(x, bodies, body_index)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
-        _, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout)
+        force, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout)
         coarse.factor(x, contact, pairs)
-        return partial(_precondition, inverse, coarse)
+        return force, inverse, coarse
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
         return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band,

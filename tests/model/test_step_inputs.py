@@ -1,0 +1,64 @@
+"""The solver's first step as network input (`ModelConfig.step_inputs`)."""
+
+import pytest
+import torch
+from drape_cases import make_input, tube
+
+from physdrape.model import ModelConfig, PhysDrape, Variant
+from physdrape.model.features import NODE_FEATURES, STEP_FEATURES
+from physdrape.model.stretching_solver import StretchingSolver
+from physdrape.physics.contact import plane_contact_forces, query_samples
+from physdrape.physics.forces import internal_forces
+from physdrape.train.loss import LossConfig, drape_loss
+
+MODEL = ModelConfig(latent=16, blocks=2, levels=1, variant=Variant.GNN_ONLY, step_inputs=True)
+
+
+def _stretched():
+    """Two tubes on their spheres, stretched 3 % along the axis and sheared: F ≠ 0, contact active."""
+    tubes = [tube(6, 16, 0.14, dtype=torch.float64, name="a"), tube(5, 13, 0.17, dtype=torch.float64, name="b")]
+    batch = make_input(tubes, [0.15, 0.13], dtype=torch.float64)
+    x = batch.x_init * torch.tensor([1.0, 1.03, 1.0], dtype=torch.float64)
+    x = x + 0.01 * torch.sin(7.0 * x[:, 1:2]) * torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    return batch, x
+
+
+def test_step_parts_add_up_to_the_preconditioned_force():
+    """Unclipped, the block-Jacobi and coarse parts sum to C F, F the internal and contact forces
+    on planes queried at x: the first step's direction of a solve from x."""
+    batch, x = _stretched()
+    solver = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin, contact_stiffness=MODEL.contact_stiffness,
+                              max_step=0.0)
+    local, coarse = solver.step_parts(x, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
+    q = query_samples(x, batch.cloth.faces, batch.bodies, batch.body_index)
+    force = internal_forces(x, batch.cloth) + plane_contact_forces(
+        x, batch.cloth.faces, q.closest.to(x.dtype), q.normal.to(x.dtype), stiffness=MODEL.contact_stiffness,
+        margin=MODEL.margin)
+    precondition = solver.preconditioner(x, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
+    torch.testing.assert_close(local + coarse, precondition(force), rtol=1e-8, atol=1e-12)
+    assert float(coarse.norm()) > 0.1 * float(local.norm())  # the coarse part is not negligible here
+    clipped = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin, contact_stiffness=MODEL.contact_stiffness,
+                               max_step=1e-4).step_parts(x, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
+    for part in clipped:
+        assert float(part.norm(dim=-1).max()) <= 1e-4 * (1 + 1e-9)
+
+
+def test_the_network_reads_the_step_parts_and_trains():
+    torch.manual_seed(0)
+    batch, _ = _stretched()
+    model = PhysDrape(MODEL).double()
+    nodes, _, _ = model.graph_inputs(batch)
+    assert nodes.shape[1] == NODE_FEATURES + STEP_FEATURES
+    local, coarse = model.solver.step_parts(batch.x_init, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
+    torch.testing.assert_close(nodes[:, NODE_FEATURES:], torch.cat([local, coarse], dim=-1))
+    out = model(batch)
+    loss, _ = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, LossConfig(),
+                         contact_stiffness=MODEL.contact_stiffness, margin=MODEL.margin)
+    loss.backward()
+    first = model.gnn.node_encoder[0].weight.grad
+    assert first.shape[1] == NODE_FEATURES + STEP_FEATURES and float(first[:, NODE_FEATURES:].abs().sum()) > 0
+
+
+def test_step_inputs_need_the_two_level_solver():
+    with pytest.raises(ValueError, match="two_level"):
+        ModelConfig(step_inputs=True, solver="explicit")
