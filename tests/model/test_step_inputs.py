@@ -51,6 +51,9 @@ def test_the_network_reads_the_step_parts_and_trains():
     assert nodes.shape[1] == NODE_FEATURES + STEP_FEATURES
     local, coarse = model.solver.step_parts(batch.x_init, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
     torch.testing.assert_close(nodes[:, NODE_FEATURES:], torch.cat([local, coarse], dim=-1))
+    # the one query of the vertices and centroids gives the vertices' distance column as a query of the vertices
+    distance = batch.bodies.query(batch.x_init, body_index=batch.body_index).signed_distance
+    torch.testing.assert_close(nodes[:, 3], distance)
     out = model(batch)
     loss, _ = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, LossConfig(),
                          contact_stiffness=MODEL.contact_stiffness, margin=MODEL.margin)

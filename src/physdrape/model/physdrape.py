@@ -18,6 +18,7 @@ from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
 from physdrape.model.stretching_solver import StretchingSolver, clip_moves
 from physdrape.physics.cloth import Cloth
+from physdrape.physics.contact import query_samples
 from physdrape.physics.layers import layer_shortfall, push_outer_out
 
 
@@ -117,13 +118,16 @@ class PhysDrape(nn.Module):
         dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels);
         with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x."""
         x = batch.x_init if x is None else x
-        query = batch.bodies.query(x, body_index=batch.body_index)
         net_dtype = self.gnn.decoder[0].weight.dtype
-        nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)
-        if self.config.step_inputs:
+        if self.config.step_inputs:  # one body query serves the vertices' distances and the step's contact
+            query = query_samples(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index)
+            nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
             local, coarse = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies,
-                                                   body_index=batch.body_index)
+                                                   body_index=batch.body_index, query=query)
             nodes = torch.cat([nodes, local.to(nodes.dtype), coarse.to(nodes.dtype)], dim=-1)
+        else:
+            query = batch.bodies.query(x, body_index=batch.body_index)
+            nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)
         nodes = nodes.to(net_dtype)
         levels = self.config.levels
         graph = batch.garments.graph_levels(levels)

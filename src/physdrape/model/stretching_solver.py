@@ -11,7 +11,7 @@ import torch
 from torch import Tensor, nn
 
 from physdrape.geometry.distance_bound import DistanceBound
-from physdrape.geometry.proximity import BodySurface
+from physdrape.geometry.proximity import BodySurface, SurfaceQuery
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
 from physdrape.physics.contact import (
@@ -278,24 +278,25 @@ class StretchingSolver(nn.Module):
 
     @torch.no_grad()
     def step_parts(self, x: Tensor, cloth: Cloth, *, bodies: BodySurface | None = None,
-                   body_index: Tensor | None = None) -> tuple[Tensor, Tensor]:
+                   body_index: Tensor | None = None, query: SurfaceQuery | None = None) -> tuple[Tensor, Tensor]:
         """The two parts of a first two-level step's direction C F at x (ΣV, 3) [m], F = −∇Φ
         without f̂ (body contact on planes queried at x; bodies / body_index as in `forward`):
         the block-Jacobi move K⁻¹F and the coarse correction's move P (Pᵀ K P)⁻¹ Pᵀ F, each
         (ΣV, 3) [m], each vertex's clipped to `max_step` as a step's (a patch out of the body's
         reach has next to no coarse stiffness: its move under gravity alone is unbounded), not
-        differentiated."""
-        force, inverse, coarse = self._first_step(x, cloth, bodies, body_index)
+        differentiated. query: the body query of x's samples (`physics.contact.query_samples`),
+        where the caller has made it already."""
+        force, inverse, coarse = self._first_step(x, cloth, bodies, body_index, query)
         return self._clip((inverse @ force.unsqueeze(-1)).squeeze(-1)), self._clip(coarse.solve(force))
 
-    def _first_step(self, x: Tensor, cloth: Cloth, bodies: BodySurface | None,
-                    body_index: Tensor | None) -> tuple[Tensor, Tensor, CoarseSpace]:
+    def _first_step(self, x: Tensor, cloth: Cloth, bodies: BodySurface | None, body_index: Tensor | None,
+                    query: SurfaceQuery | None = None) -> tuple[Tensor, Tensor, CoarseSpace]:
         """F at x, the inverse stiffness blocks and the coarse space factored at x."""
         if self.kind is not SolverKind.TWO_LEVEL:
             raise ValueError(f"the preconditioner belongs to the two_level solver; this solver is {self.kind.value}")
         problem = self._relaxation(cloth, None)
         if bodies is not None:
-            problem.requery(x, bodies, body_index)
+            problem.requery(x, bodies, body_index, query=query)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         force, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout)
         coarse.factor(x, contact, pairs)
@@ -408,7 +409,7 @@ class _Relaxation:
         self._potential.drop_external()
 
     def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *,
-                local: bool = False) -> Tensor | None:
+                local: bool = False, query: SurfaceQuery | None = None) -> Tensor | None:
         """Query the body at the samples of x and hold the planes.
 
         local: only the samples within the contact band of their held planes (and, with
@@ -417,11 +418,12 @@ class _Relaxation:
         body; or their planes are a fraction of a millimetre old). Returns the change of Φ at x
         per garment (G,) [J], float64, that the new planes make (only the followed samples'
         penalties change), or None after a full query (every plane may have changed: Φ is
-        evaluated anew).
+        evaluated anew). query: a full query of x's samples made already (`query_samples`).
         """
         with torch.no_grad():
             if not local or self.planes is None:
-                q = query_samples(x.detach(), self.cloth.faces, bodies, body_index, bound=self._bound_on(bodies))
+                q = query if query is not None else query_samples(x.detach(), self.cloth.faces, bodies, body_index,
+                                                                  bound=self._bound_on(bodies))
                 # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
                 self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
                 samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
