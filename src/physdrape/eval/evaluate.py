@@ -91,8 +91,9 @@ class RowSpec:
 
 
 MAIN_ROWS = (
-    RowSpec("gnn_only", "GNN only", Variant.GNN_ONLY, None, "X_init + Δx of the GNN (no solver, no handler; a multi-piece garment's outer vertices that Δx "
-            "drove into the piece under them pushed back out, as every row's network move)"),
+    RowSpec("gnn_only", "GNN only", Variant.GNN_ONLY, None,
+            "X_init + Δx of the GNN (no solver, no handler; a multi-piece garment's outer vertices that Δx drove into "
+            "the piece under them pushed back out, as every row's network move)"),
     RowSpec("post_col", "Post-Col", Variant.POST_COL, None,
             "GNN → solver (T = eval_steps) → handler with δ = 1 as post-processing (full model's weights, learned δ replaced by 1)"),
     RowSpec("physdrape_t3", "PhysDrape (T=3)", Variant.FULL, 3, "GNN → solver T = 3 → handler (learned δ)"),
