@@ -37,8 +37,9 @@ def test_step_parts_add_up_to_the_preconditioned_force():
     precondition = solver.preconditioner(x, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
     torch.testing.assert_close(local + coarse, precondition(force), rtol=1e-8, atol=1e-12)
     assert float(coarse.norm()) > 0.1 * float(local.norm())  # the coarse part is not negligible here
-    clipped = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin, contact_stiffness=MODEL.contact_stiffness,
-                               max_step=1e-4).step_parts(x, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
+    short = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin, contact_stiffness=MODEL.contact_stiffness,
+                             max_step=1e-4)
+    clipped = short.step_parts(x, batch.cloth, bodies=batch.bodies, body_index=batch.body_index)
     for part in clipped:
         assert float(part.norm(dim=-1).max()) <= 1e-4 * (1 + 1e-9)
 
@@ -65,3 +66,30 @@ def test_the_network_reads_the_step_parts_and_trains():
 def test_step_inputs_need_the_two_level_solver():
     with pytest.raises(ValueError, match="two_level"):
         ModelConfig(step_inputs=True, solver="explicit")
+
+
+def test_the_step_parts_need_only_the_centroids_within_the_contact_reach():
+    """With the face centroids beyond the contact's reach (by their corners' distances) left
+    unqueried, the step parts are those of the full query, to rounding."""
+    from physdrape.physics.contact import query_samples, query_samples_near
+
+    batch, x = _stretched()
+    x = x + torch.tensor([0.0, 0.08, 0.0], dtype=x.dtype)  # partly off the spheres: some centroids far
+    solver = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin, contact_stiffness=MODEL.contact_stiffness)
+    reach = max(solver.contact_band, solver.margin)
+    faces = batch.cloth.faces
+    full = query_samples(x, faces, batch.bodies, batch.body_index)
+    near = query_samples_near(x, faces, batch.bodies, batch.body_index, reach=reach)
+    num_verts = x.shape[0]
+    stand_in = near.face[num_verts:] < 0
+    assert 0 < int(stand_in.sum()) < len(stand_in)
+    assert bool((full.signed_distance[num_verts:][stand_in] >= reach).all())
+    bound, exact = near.signed_distance[num_verts:][stand_in], full.signed_distance[num_verts:][stand_in]
+    assert bool((bound <= exact + 1e-12).all())  # the stand-in's distance is a lower bound
+    for name in ("closest", "normal", "signed_distance", "face"):
+        kept = torch.cat([torch.ones(num_verts, dtype=torch.bool), ~stand_in])
+        torch.testing.assert_close(getattr(near, name)[kept], getattr(full, name)[kept])
+    args = {"bodies": batch.bodies, "body_index": batch.body_index}
+    for got, want in zip(solver.step_parts(x, batch.cloth, query=near, **args),
+                         solver.step_parts(x, batch.cloth, query=full, **args), strict=True):
+        torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-14)

@@ -18,7 +18,7 @@ from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
 from physdrape.model.stretching_solver import StretchingSolver, clip_moves
 from physdrape.physics.cloth import Cloth
-from physdrape.physics.contact import query_samples
+from physdrape.physics.contact import query_samples_near
 from physdrape.physics.layers import layer_shortfall, push_outer_out
 
 
@@ -120,7 +120,9 @@ class PhysDrape(nn.Module):
         x = batch.x_init if x is None else x
         net_dtype = self.gnn.decoder[0].weight.dtype
         if self.config.step_inputs:  # one body query serves the vertices' distances and the step's contact
-            query = query_samples(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index)
+            # the face centroids only within the contact's reach, the others no contact term or block sees
+            reach = max(self.solver.contact_band, self.solver.margin)
+            query = query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
             nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
             local, coarse = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies,
                                                    body_index=batch.body_index, query=query)

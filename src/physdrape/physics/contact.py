@@ -29,7 +29,8 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.closest_point import WALK_MOVES
-from physdrape.geometry.proximity import SignMethod
+from physdrape.geometry.distance_bound import SLACK as DISTANCE_SLACK
+from physdrape.geometry.proximity import SignMethod, SurfaceQuery
 from physdrape.physics import contact_kernels
 from physdrape.physics.element_kernels import run_kernel
 from physdrape.tensor_memo import TensorMemo
@@ -37,7 +38,7 @@ from physdrape.warp_runtime import launch_arg, torch_stream, warp
 
 if TYPE_CHECKING:
     from physdrape.geometry.distance_bound import DistanceBound
-    from physdrape.geometry.proximity import BodySurface, SurfaceQuery
+    from physdrape.geometry.proximity import BodySurface
     from physdrape.physics.cloth import Cloth
 
 #: Collision margin ε [m]; also the collision handler's margin (DESIGN.md Sec. 2).
@@ -79,6 +80,34 @@ def query_samples(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tens
         samples, index = samples[rows], None if index is None else index[rows]
         bound = None if bound is None else bound.select(rows)
     return bodies.query(samples, body_index=index, near=near, bound=bound)
+
+
+def query_samples_near(x: Tensor, faces: Tensor, bodies: BodySurface, vert_body: Tensor | None, *,
+                       reach: float) -> SurfaceQuery:
+    """`query_samples` of x (V, 3) [m] where only the planes within `reach` [m] of the body matter:
+    every vertex is queried, a face centroid only where its distance may be below `reach` by its
+    corners' (a signed distance is 1-Lipschitz: d(c) ≥ d(v) − ‖c − v‖). A centroid beyond gets a
+    stand-in plane at that lower bound below it (normal +y, face −1, outside): a contact term or
+    block that ignores samples at least `reach` from their planes sees nothing of it, as it would
+    see nothing of its own plane. Its signed_distance is the bound, not the distance."""
+    samples = contact_samples(x.to(bodies.verts.dtype), faces)
+    num_verts = x.shape[0]
+    vertex = bodies.query(samples[:num_verts], body_index=vert_body)
+    centroid = samples[num_verts:]
+    gap = (centroid[:, None, :] - samples[:num_verts][faces]).norm(dim=-1)
+    lower = (vertex.signed_distance[faces] - gap).amax(dim=1)
+    near = torch.nonzero(lower < reach + DISTANCE_SLACK)[:, 0]
+    found = bodies.query(centroid[near], body_index=None if vert_body is None else vert_body[faces[near, 0]])
+    normal = torch.zeros_like(centroid)
+    normal[:, 1] = 1.0
+    parts = {"closest": centroid - lower[:, None] * normal, "normal": normal, "signed_distance": lower,
+             "face": torch.full_like(lower, -1, dtype=torch.int64), "bary": torch.full_like(centroid, 1.0 / 3.0),
+             "inside": torch.zeros_like(lower, dtype=torch.bool)}
+    fields = {}
+    for name, stand_in in parts.items():
+        value = getattr(found, name)
+        fields[name] = torch.cat([getattr(vertex, name), stand_in.to(value.dtype).index_copy(0, near, value)])
+    return SurfaceQuery(**fields)
 
 
 @dataclass(frozen=True)
