@@ -284,8 +284,8 @@ class StretchingSolver(nn.Module):
         the block-Jacobi move K⁻¹F and the coarse correction's move P (Pᵀ K P)⁻¹ Pᵀ F, each
         (ΣV, 3) [m], each vertex's clipped to `max_step` as a step's (a patch out of the body's
         reach has next to no coarse stiffness: its move under gravity alone is unbounded), not
-        differentiated. query: the body query of x's samples (`physics.contact.query_samples`),
-        where the caller has made it already."""
+        differentiated. query: x's samples' body query, made already (`physics.contact.query_samples`
+        or `query_samples_near` with a reach ≥ the contact band and ε: the same parts)."""
         force, inverse, coarse = self._first_step(x, cloth, bodies, body_index, query)
         return self._clip((inverse @ force.unsqueeze(-1)).squeeze(-1)), self._clip(coarse.solve(force))
 
@@ -418,7 +418,8 @@ class _Relaxation:
         body; or their planes are a fraction of a millimetre old). Returns the change of Φ at x
         per garment (G,) [J], float64, that the new planes make (only the followed samples'
         penalties change), or None after a full query (every plane may have changed: Φ is
-        evaluated anew). query: a full query of x's samples made already (`query_samples`).
+        evaluated anew). query: x's samples' full query, made already (a `query_samples_near`
+        stand-in's distance is a lower bound, which keeps the held bound valid).
         """
         with torch.no_grad():
             if not local or self.planes is None:
