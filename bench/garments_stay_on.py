@@ -54,7 +54,7 @@ from physdrape.atomic import write_text
 from physdrape.body.anny_body import PHENOTYPE_NAMES
 from physdrape.eval.report import finite_or_none
 from physdrape.garments.closures import panel_overlaps
-from physdrape.garments.intersections import self_intersecting_pairs
+from physdrape.garments.intersections import piece_crossings
 from physdrape.garments.pieces import garment_parts
 from physdrape.provenance import provenance
 
@@ -125,13 +125,6 @@ def pair_gaps(x: np.ndarray, pairs: np.ndarray, reference: np.ndarray | None = N
     if reference is not None:
         d = np.clip(d - np.linalg.norm(reference[pairs[:, 0]] - reference[pairs[:, 1]], axis=1), 0.0, None)
     return float(d.mean()), float(d.max())
-
-
-def piece_crossings(x: np.ndarray, faces: np.ndarray, piece: np.ndarray) -> int:
-    """Intersecting face pairs whose faces belong to different pieces."""
-    pairs = self_intersecting_pairs(x, faces)
-    owner = piece[faces[:, 0]]
-    return int((owner[pairs[:, 0]] != owner[pairs[:, 1]]).sum()) if len(pairs) else 0
 
 
 def measure(res, template, parts, overlaps) -> dict:

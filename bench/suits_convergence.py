@@ -42,18 +42,15 @@ from physdrape.checkpoint import load_model
 from physdrape.eval import evaluate as ev
 from physdrape.eval.config import EvalConfig
 from physdrape.eval.instances import makehuman_instances
-from physdrape.garments.intersections import self_intersecting_pairs
+from physdrape.garments.intersections import piece_crossings
 from physdrape.garments.pieces import garment_parts
 from physdrape.model import Variant
 from physdrape.physics.forces import energy_terms
 from physdrape.provenance import provenance
 
 
-def piece_crossings(x: torch.Tensor, faces: np.ndarray, piece: np.ndarray) -> int:
-    """Intersecting face pairs of the drape x (V, 3) whose faces lie on different pieces."""
-    pairs = self_intersecting_pairs(x.detach().double().cpu().numpy(), faces)
-    owner = piece[faces[:, 0]]
-    return int((owner[pairs[:, 0]] != owner[pairs[:, 1]]).sum()) if len(pairs) else 0
+def crossings(x: torch.Tensor, faces: np.ndarray, piece: np.ndarray) -> int:
+    return piece_crossings(x.detach().double().cpu().numpy(), faces, piece)
 
 
 def measure(x: torch.Tensor, batch, contact: ev.Contact, reference: float, faces: np.ndarray,
@@ -62,7 +59,7 @@ def measure(x: torch.Tensor, batch, contact: ev.Contact, reference: float, faces
     total = float(ev.total_energy(x, batch, contact)[0])
     return {"energy_total": total, "excess_J": total - reference,
             "strain": terms["strain"], "gravity": terms["gravity"], "layer": terms.get("layer"),
-            "crossings": piece_crossings(x, faces, piece)}
+            "crossings": crossings(x, faces, piece)}
 
 
 def main() -> None:
@@ -128,7 +125,7 @@ def main() -> None:
                              "wall_s": time.perf_counter() - start,
                              "piece_mean_dy_mm": [float(move[torch.from_numpy(piece == p)].mean())
                                                   for p in range(len(counts))],
-                             "x15_crossings": piece_crossings(x15, faces, piece)}
+                             "x15_crossings": crossings(x15, faces, piece)}
         rows.append(row)
         print(f"[suits] {inst.garment}: " + ", ".join(
             f"T={t} {c['model']['gap_left']:.3f}" for t, c in row["steps"].items()), file=sys.stderr, flush=True)

@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 import torch
 
-from physdrape.garments.intersections import ray_hit_distances, self_intersecting_faces, self_intersecting_pairs
+from physdrape.garments.intersections import (
+    piece_crossings,
+    ray_hit_distances,
+    self_intersecting_faces,
+    self_intersecting_pairs,
+)
 from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
 from physdrape.geometry.garment import vertex_normals as torch_vertex_normals
 
@@ -47,6 +52,22 @@ def test_layered_triangles_a_few_millimetres_apart_do_not_intersect(scale):
     assert len(self_intersecting_pairs(np.concatenate([top, band]) * scale, faces)) == 0
     through = band - normal * ((band - top[0]) @ normal).mean()  # its centre moved onto the top's plane
     assert self_intersecting_pairs(np.concatenate([top, through]) * scale, faces).tolist() == [[0, 1]]
+
+
+def test_piece_crossings_count_only_pairs_of_two_pieces():
+    """Two flat squares (pieces) crossing each other at right angles: their faces intersect, and
+    every such pair joins the two pieces; the same two squares as one piece count none, and so
+    do the squares apart."""
+    square = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]]) * 0.05
+    upright = square[:, [0, 2, 1]]  # the square in the x-z plane, through the first
+    verts = np.concatenate([square, upright])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    pairs = self_intersecting_pairs(verts, faces)
+    assert len(pairs) > 0
+    assert piece_crossings(verts, faces) == len(pairs)  # the connected components: two pieces
+    assert piece_crossings(verts, faces, piece=np.zeros(8, np.int64)) == 0
+    apart = np.concatenate([square, upright + [0.0, 0.5, 0.0]])
+    assert piece_crossings(apart, faces) == 0
 
 
 def test_body_distance_sign_and_normal():

@@ -34,9 +34,11 @@ when given, otherwise the same switches of the main checkpoint (labelled as such
 
 Metrics per row and instance: `physdrape.physics.metrics.drape_metrics` (E_strain, E_bend, B2G %,
 close %, residual force) plus the total static energy the oracle minimises (strain + bend +
-gravity + contact penalty) and the wall time. Energies are also given as the ratio of the row's
-mean to the reference's mean over the same instances, over all instances and per garment category
-(the category a split garment's name carries, `physdrape.eval.summary.by_category`).
+gravity + contact penalty) and the wall time; for a garment of several pieces, also the drape's
+piece crossings (summed over the instances in the tables). Energies are also
+given as the ratio of the row's mean to the reference's mean over the same instances, over all
+instances and per garment category (the category a split garment's name carries,
+`physdrape.eval.summary.by_category`).
 """
 
 from __future__ import annotations
@@ -60,6 +62,8 @@ from physdrape.eval.instances import (
 )
 from physdrape.eval.reference_cache import ReferenceCache, reference_key
 from physdrape.eval.report import PUBLISHED_ABLATION, PUBLISHED_MAIN, PUBLISHED_NOTE
+from physdrape.garments.intersections import piece_crossings
+from physdrape.geometry.topology import connected_components
 from physdrape.model import DrapeInput, PhysDrape, Variant
 from physdrape.physics import energy
 from physdrape.physics.metrics import drape_metrics
@@ -139,9 +143,16 @@ class Contact(NamedTuple):
 
 
 def _metrics(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> dict[str, float]:
+    """The drape's metrics and E_total; for a garment of several pieces, also its piece crossings
+    (`garments.intersections.piece_crossings`: the layer order's pairs, fixed on the template, do
+    not see a piece that has slid through another)."""
     m = drape_metrics(x, batch.garments, batch.bodies, batch.body_index, cloth=batch.cloth)
     out = {name: values[0] for name, values in m.as_dict().items()}
     out["energy_total"] = float(total_energy(x, batch, contact)[0])
+    faces = batch.garments.faces.cpu().numpy()
+    piece = connected_components(x.shape[0], faces)
+    if piece.max(initial=0) > 0:
+        out["piece_crossings"] = piece_crossings(x.detach().double().cpu().numpy(), faces, piece)
     return out
 
 

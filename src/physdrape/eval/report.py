@@ -39,6 +39,9 @@ def _fmt(value, digits: int = 3) -> str:
 
 def _table(rows: list[tuple[str, dict]], *, timing: bool, oracle: bool) -> list[str]:
     head = ["Method", "E_strain [J]", "E_bend [J]", "B2G %", "close %", "residual [N]", "E_total [J]"]
+    crossings = any("piece_crossings" in s for _, s in rows)  # a set of garments worn in pieces
+    if crossings:
+        head += ["piece crossings (sum)"]
     if oracle:
         head += ["E_strain / reference", "E_bend / reference", "E_total / reference"]
     if timing:
@@ -46,6 +49,8 @@ def _table(rows: list[tuple[str, dict]], *, timing: bool, oracle: bool) -> list[
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, s in rows:
         cells = [label] + [_fmt(s.get(k)) for k in ("strain", "bend", "b2g_percent", "close_percent", "residual_force", "energy_total")]
+        if crossings:
+            cells += [_fmt(s.get("piece_crossings"))]
         if oracle:
             cells += [_fmt(s.get(f"{k}_ratio")) for k in ("strain", "bend", "energy_total")]
         if timing:
@@ -131,9 +136,11 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
     out.append("Energies are means over instances under the default material; E_total = E_strain + E_bend + E_grav + "
                "contact penalty (what the oracle minimises), plus, for the MakeHuman garments, worn as `Draper.drape` "
                "wears an .mhclo (sized to fit, waistband gripped, closures stitched, pieces kept in their layer "
-               "order), the grip, stitch and layer-order terms. Ratios: row mean / reference mean on "
-               "the same instances. residual: mean |F_int| over vertices > 3 mm from the body. The oracle's wall time "
-               "is a lower bound where it stopped on its budget instead of converging.")
+               "order), the grip, stitch and layer-order terms; their piece crossings: the face pairs of two "
+               "different pieces that intersect, summed over the instances (the layer order's pairs are fixed on "
+               "the template and do not see a piece that has slid through another). Ratios: row mean / reference "
+               "mean on the same instances. residual: mean |F_int| over vertices > 3 mm from the body. The oracle's "
+               "wall time is a lower bound where it stopped on its budget instead of converging.")
     cache = results.get("reference_cache")
     if timing and cache and cache["hits"]:
         out.append("")

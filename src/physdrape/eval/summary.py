@@ -16,12 +16,16 @@ CATEGORY_KEYS = ("strain", "energy_total", "b2g_percent")
 
 
 def summary(records: list[dict]) -> dict:
-    """Mean of every metric and of the wall time over `records`, and the median wall time."""
+    """Mean of every metric and of the wall time over `records`, and the median wall time; the
+    piece crossings summed, where any record counts them (a set with garments of several pieces;
+    a garment of one piece counts none)."""
     out = {}
     for key in METRIC_KEYS + ("wall_s",):
         values = [r[key] for r in records]
         out[key] = float(np.mean(values)) if values else math.nan
     out["wall_s_median"] = float(np.median([r["wall_s"] for r in records])) if records else math.nan
+    if any("piece_crossings" in r for r in records):
+        out["piece_crossings"] = int(sum(r.get("piece_crossings", 0) for r in records))
     return out
 
 

@@ -6,6 +6,7 @@ the garment tools need, on Warp's triangle BVH (CPU, float32: exact to ~1e-6 m):
 
 - `self_intersecting_faces`: faces of a garment crossing another face of the same garment;
 - `self_intersecting_pairs`: the crossing face pairs themselves (to untangle them);
+- `piece_crossings`: how many of those pairs join two pieces of a multi-piece garment;
 - `ray_hit_distances`: how far rays travel before they hit a mesh (free space in front of a body).
 """
 
@@ -15,7 +16,7 @@ import numpy as np
 
 from physdrape.warp_runtime import defined_once
 
-__all__ = ["self_intersecting_faces", "self_intersecting_pairs", "ray_hit_distances"]
+__all__ = ["piece_crossings", "self_intersecting_faces", "self_intersecting_pairs", "ray_hit_distances"]
 
 _DEVICE = "cpu"
 
@@ -133,6 +134,25 @@ def self_intersecting_pairs(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
         capacity = n
     out = pairs.numpy()[:n].astype(np.int64)
     return out[np.lexsort((out[:, 1], out[:, 0]))]
+
+
+def piece_crossings(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray | None = None) -> int:
+    """How many intersecting face pairs (`self_intersecting_pairs`) have their faces on different
+    pieces: one piece passing through another, which the layer order's pairs, fixed on the
+    template, do not see once the pieces have slid far over each other.
+
+    Args:
+        verts: vertex positions [m], shape (V, 3); faces: triangles, shape (F, 3) int.
+        piece: the piece of each vertex, shape (V,) int (default: the mesh's connected components).
+    """
+    faces = np.asarray(faces, np.int64)
+    if piece is None:
+        from physdrape.geometry.topology import connected_components
+
+        piece = connected_components(len(verts), faces)
+    pairs = self_intersecting_pairs(verts, faces)
+    owner = np.asarray(piece)[faces[:, 0]]
+    return int((owner[pairs[:, 0]] != owner[pairs[:, 1]]).sum()) if len(pairs) else 0
 
 
 def ray_hit_distances(
