@@ -150,13 +150,15 @@ _FIX = ("point to another checkpoint, re-export it from its run directory (pytho
         "the bundled model reinstall PhysDrape (pip install -e .)")
 
 
-def load_model(path: str | os.PathLike, *, variant: Variant | None = None) -> tuple[PhysDrape, dict]:
+def load_model(path: str | os.PathLike, *, variant: Variant | None = None,
+               passes: int | None = None) -> tuple[PhysDrape, dict]:
     """The model of a checkpoint (directory, or a run directory: its latest), in eval mode, its
     network in the dtype it was trained in, switched to `variant` when given, else to the variant
     the checkpoint was exported to run as (config.json's "variant", `export_model`), else the one
-    it was trained as.
+    it was trained as; its network run as `passes` passes when given, else as many as it was
+    exported to run (config.json's "passes"), else as many as it was trained with.
 
-    Returns (model, info {"path", "step", "variant", "eval_steps", "dtype"}).
+    Returns (model, info {"path", "step", "variant", "passes", "eval_steps", "dtype"}).
     """
     path = resolve(path)
     tensors, config = read_checkpoint(path)
@@ -175,6 +177,12 @@ def load_model(path: str | os.PathLike, *, variant: Variant | None = None) -> tu
                                   f"{[v.value for v in Variant]}; {_FIX}") from None
     if variant is not None:
         model_cfg = replace(model_cfg, variant=variant)
+    if passes is None and config.get("passes") is not None:
+        passes = config["passes"]
+        if not isinstance(passes, int) or passes < 1:
+            raise CheckpointError(f"{path / CONFIG_FILE}: passes {passes!r} is not an integer ≥ 1; {_FIX}")
+    if passes is not None:
+        model_cfg = replace(model_cfg, passes=passes)
     dtype = getattr(torch, str(train.get("dtype", "float32")), None)
     if dtype not in (torch.float32, torch.float64):
         raise CheckpointError(f"{path / CONFIG_FILE}: train.dtype {train.get('dtype')!r} is not float32 or float64")
@@ -186,7 +194,7 @@ def load_model(path: str | os.PathLike, *, variant: Variant | None = None) -> tu
     model.eval()
     step = path.name.split("-")[-1]
     info = {"path": str(path.resolve()), "step": int(step) if step.isdigit() else None,
-            "variant": model_cfg.variant.value, "eval_steps": model_cfg.eval_steps,
+            "variant": model_cfg.variant.value, "passes": model_cfg.passes, "eval_steps": model_cfg.eval_steps,
             "dtype": str(dtype).removeprefix("torch.")}
     return model, info
 
@@ -200,18 +208,25 @@ def read_train_state(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
 
 
 def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike, *,
-                 variant: Variant | str | None = None) -> Path:
+                 variant: Variant | str | None = None, passes: int | None = None) -> Path:
     """Copy a checkpoint's model (model.safetensors + config.json, no training state) to out_dir,
     atomically: the form in which a trained model is shipped and loaded for inference.
 
     variant: the variant the exported model runs as (`load_model`'s default), e.g. "full" for a
     network trained alone (GNN-only) that is to drape through the solver and the handler; the
-    config's train section keeps the variant it was trained as. None: as trained."""
+    config's train section keeps the variant it was trained as. None: as trained.
+    passes: the network passes the exported model makes (`load_model`'s default; `ModelConfig.passes`),
+    e.g. 2 for a network trained as one pass that is to look again at the garment it moved. None:
+    as trained."""
+    if passes is not None and (not isinstance(passes, int) or passes < 1):
+        raise ValueError(f"passes must be an integer ≥ 1, got {passes!r}")
     source = resolve(checkpoint)
     _, config = read_checkpoint(source)  # validates that both files are readable
     extra = {"exported_from": source.name}
     if variant is not None:
         extra["variant"] = Variant(variant).value
+    if passes is not None:
+        extra["passes"] = passes
     with atomic_directory(out_dir) as tmp:
         shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps({**config, **extra}, indent=2, sort_keys=True))

@@ -187,6 +187,32 @@ def test_pose_with_arms_through_the_torso_is_refused(draper, anny_body):
     assert len(unchecked.drape("default", pose=pose.numpy())) == 1
 
 
+def test_passes_override_the_checkpoints(anny_body, tiny_checkpoint, monkeypatch):
+    """Draper(passes=k) runs the network k times before the solver (`PhysDrape.forward` reads each
+    pass's inputs at the garment the passes before it moved); by default as many as the
+    checkpoint makes."""
+    from physdrape.model.physdrape import PhysDrape
+
+    default = Draper(tiny_checkpoint, steps=1, body=anny_body)
+    twice = Draper(tiny_checkpoint, steps=1, body=anny_body, passes=2)
+    assert default.model_config.passes == 1 and twice.model_config.passes == 2
+    looked_at, original = [], PhysDrape.graph_inputs
+
+    def graph_inputs(self, batch, x=None):
+        looked_at.append(batch.x_init if x is None else x)
+        return original(self, batch, x)
+
+    monkeypatch.setattr(PhysDrape, "graph_inputs", graph_inputs)
+    [once] = default.drape("default")
+    assert len(looked_at) == 1
+    looked_at.clear()
+    [res] = twice.drape("default")
+    assert len(looked_at) == 2
+    assert res.metrics["b2g_percent"] == 0.0
+    with pytest.raises(DrapeError, match="passes must be an integer"):
+        Draper(tiny_checkpoint, body=anny_body, passes=0)
+
+
 def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpoint, monkeypatch):
     """A drape runs the solver's eval-mode plane schedule: by default (`ModelConfig`'s) a full body
     query every eval_requery_every steps and a local one at the steps between;

@@ -141,6 +141,7 @@ BAD = [
     (["--frames", "0:4"], "give --bvh FILE"),
     (["--bvh", "no/such.bvh"], "BVH file not found"),
     (["--steps", "-1"], "steps must be a non-negative integer"),
+    (["--passes", "0"], "passes must be an integer ≥ 1"),
     (["--checkpoint", "no/such/dir"], "no/such/dir does not exist"),
     (["--out", "@file/sub"], "not writable"),
     (["--out", "@file"], "not a directory"),

@@ -90,6 +90,8 @@ def test_an_interrupted_stage_resumes(recipe, tmp_path):
     ("stages: [{name: ../a, config: c.yaml}]", "plain directory name"),
     ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m}", "model_out and record_out"),
     ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, variant: gnn_only}", "ship.variant"),
+    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, passes: 0}", "ship.passes"),
+    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, passes: two}", "ship.passes"),
     ("steps: 3", "a list `stages`"),
 ])
 def test_a_bad_recipe_is_named(tmp_path, text, pattern):
@@ -141,4 +143,25 @@ def test_a_network_trained_alone_ships_to_drape_through_the_solver(tmp_path):
     config["variant"] = "everything"
     (tmp_path / "model" / "config.json").write_text(json.dumps(config))
     with pytest.raises(ckpt.CheckpointError, match="variant 'everything'"):
+        ckpt.load_model(tmp_path / "model")
+
+
+def test_a_network_trained_as_one_pass_ships_to_make_two(tmp_path):
+    """ship.passes: the exported model's network makes that many passes, its record keeps the
+    passes it was trained with, and an explicit number still wins when loading; a bad number in
+    config.json is named."""
+    one = _config(tmp_path / "a.yaml", solver="two_level", steps=2, seed=1)
+    path = tmp_path / "recipe.yaml"
+    ship = {"model_out": str(tmp_path / "model"), "record_out": str(tmp_path / "record"), "passes": 2}
+    path.write_text(yaml.safe_dump({"stages": [{"name": "one", "config": str(one)}], "ship": ship}))
+    run_recipe(path, tmp_path / "run", source=source, command="c", log=lambda _: None)
+    model, info = ckpt.load_model(tmp_path / "model")
+    assert info["passes"] == 2 and model.config.passes == 2
+    assert ckpt.load_model(tmp_path / "run" / "one")[1]["passes"] == 1  # the run itself: as trained
+    assert ckpt.load_model(tmp_path / "model", passes=3)[0].config.passes == 3
+    _, config = ckpt.read_checkpoint(tmp_path / "model")
+    assert config["train"]["model"]["passes"] == 1 and config["passes"] == 2
+    config["passes"] = 0
+    (tmp_path / "model" / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ckpt.CheckpointError, match="passes 0"):
         ckpt.load_model(tmp_path / "model")

@@ -9,6 +9,7 @@ A recipe is a YAML file::
       model_out: src/physdrape/assets/models/cpu_default
       record_out: docs/training/shipped
       variant: full              # optional: the variant the shipped model runs as (default: as trained)
+      passes: 2                  # optional: the network passes it makes (default: as trained)
 
 `physdrape train --recipe FILE --run-dir DIR [--resume]` trains stage k into DIR/<name>, with
 ``optim.init_from`` set to DIR/<previous name> (whatever the stage's config says), skips stages
@@ -19,7 +20,8 @@ command, and per stage its config, seed, steps and the wall time spent in it (su
 resumed segments, as its metrics.jsonl logged them). With ``ship``, the last stage's model is exported and
 every stage's training record written into record_out/<stage name> (`physdrape.train.ship`), with
 the recipe's record beside them; ``variant`` ships it to run as that variant (`export_model`): a
-network trained alone (GNN-only) shipped to drape through the solver and the handler.
+network trained alone (GNN-only) shipped to drape through the solver and the handler; ``passes``
+ships its network to make that many passes (`ModelConfig.passes`).
 """
 
 from __future__ import annotations
@@ -48,13 +50,14 @@ class Stage:
 
 @dataclass(frozen=True)
 class Recipe:
-    """Stages in order and, optionally, where to ship the last one (model dir, record dir) and
-    the variant it runs as there (None: as trained)."""
+    """Stages in order and, optionally, where to ship the last one (model dir, record dir), the
+    variant it runs as there and its network's passes (None: as trained)."""
 
     stages: tuple[Stage, ...]
     model_out: Path | None = None
     record_out: Path | None = None
     variant: str | None = None
+    passes: int | None = None
 
 
 def load_recipe(path: str | Path) -> Recipe:
@@ -78,13 +81,17 @@ def load_recipe(path: str | Path) -> Recipe:
     if not stages or len({s.name for s in stages}) != len(stages):
         raise ConfigError(f"{path}: give at least one stage, with distinct names")
     ship = data.get("ship") or {}
-    if set(ship) - {"model_out", "record_out", "variant"} or (ship and not {"model_out", "record_out"} <= set(ship)):
-        raise ConfigError(f"{path}: `ship` takes model_out and record_out, and optionally variant")
+    allowed = {"model_out", "record_out", "variant", "passes"}
+    if set(ship) - allowed or (ship and not {"model_out", "record_out"} <= set(ship)):
+        raise ConfigError(f"{path}: `ship` takes model_out and record_out, and optionally variant and passes")
     variant = ship.get("variant")
     if variant is not None and variant not in [v.value for v in Variant]:
         raise ConfigError(f"{path}: ship.variant must be one of {[v.value for v in Variant]}, got {variant!r}")
+    passes = ship.get("passes")
+    if passes is not None and (not isinstance(passes, int) or isinstance(passes, bool) or passes < 1):
+        raise ConfigError(f"{path}: ship.passes must be an integer ≥ 1, got {passes!r}")
     return Recipe(tuple(stages), Path(ship["model_out"]) if ship else None,
-                  Path(ship["record_out"]) if ship else None, variant)
+                  Path(ship["record_out"]) if ship else None, variant, passes)
 
 
 def stage_configs(recipe: Recipe, run_dir: Path) -> list[TrainConfig]:
@@ -154,7 +161,8 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
     if recipe.model_out is not None:
         from physdrape.train.ship import write_record
 
-        export_model(latest_checkpoint(run_dir / recipe.stages[-1].name), recipe.model_out, variant=recipe.variant)
+        export_model(latest_checkpoint(run_dir / recipe.stages[-1].name), recipe.model_out, variant=recipe.variant,
+                     passes=recipe.passes)
         for stage in recipe.stages:
             write_record(run_dir / stage.name, recipe.record_out / stage.name, command=command)
         write_text(recipe.record_out / "recipe.json", json.dumps(record, indent=2) + "\n")
