@@ -112,9 +112,13 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
     ck = results["checkpoints"]["physdrape_t15"]
     test = results["sets"]["test"]["instances"]
     poses = max(i.get("pose_index", 0) for i in test) + 1 if test else 0
-    out.append(f"Checkpoint: `{ck['path']}` (step {ck['step']}). Seed {cfg['seed']}, {len(test)} test instances "
-               f"({len({i['garment'] for i in test})} test garments, up to {poses} pose(s) each; instance i: garment "
-               f"i mod G in pose i div G, on a body drawn from its own seed), default material, dtype {cfg['dtype']}.")
+    passes = ck.get("passes", 1)
+    looks = "one network pass" if passes == 1 else (f"{passes} network passes, each reading its inputs at the garment "
+                                                     "the passes before it moved")
+    out.append(f"Checkpoint: `{ck['path']}` (step {ck['step']}; {looks}). Seed {cfg['seed']}, {len(test)} test "
+               f"instances ({len({i['garment'] for i in test})} test garments, up to {poses} pose(s) each; instance "
+               f"i: garment i mod G in pose i div G, on a body drawn from its own seed), default material, dtype "
+               f"{cfg['dtype']}.")
     if timing:
         out.append(f"Command: `{results['command']}`")
     out.append("")
