@@ -24,3 +24,12 @@ def test_compare_writes_every_run_and_step(tmp_path):
     assert "| first | 10 | 0.500 |" in text and "| second | 0 | 1.000 |" in text and "T = 3 E/teacher 1.200" in text
     record = json.loads((tmp_path / "cmp.json").read_text())
     assert [r["step"] for r in record["rows"]["first"]] == [0, 10] and record["command"].startswith("python -m")
+
+
+def test_passes_need_a_checkpoint(tmp_path, capsys):
+    import pytest
+
+    _run(tmp_path / "a", [(0, 1.0)])
+    with pytest.raises(SystemExit):
+        main([f"first={tmp_path / 'a'}", "--passes", "2", "--out", str(tmp_path / "cmp")])
+    assert "--passes" in capsys.readouterr().err

@@ -1,13 +1,14 @@
 """Training runs side by side on their held-out curves (`physdrape.train.validation`).
 
     python -m physdrape.train.compare NAME=RUN_DIR [NAME=RUN_DIR ...] --out results/training_signal \
-        [--checkpoint NAME=DIR --config CONFIG.yaml]
+        [--checkpoint NAME=DIR --config CONFIG.yaml [--passes 1 2 ...]]
 
 For every run, the rows of its validation.jsonl (or of a shipped record's) at each validated
 step, and for every --checkpoint (a model trained elsewhere, e.g. an earlier bundled model) the
-same rows measured now on the validation set of CONFIG's data section: E_total / teacher and the energy gap left for GNN only, T = 3 and T = 15, E_strain / teacher
-at T = 15, B2G at T = 15, and the network-free solver's rows once. Writes OUT.md and OUT.json
-atomically, naming the command and the commit.
+same rows measured now on the validation set of CONFIG's data section (with --passes, once per
+number of network passes, `ModelConfig.passes`): E_total / teacher and the energy gap left for
+GNN only, T = 3 and T = 15, E_strain / teacher at T = 15, B2G at T = 15, and the network-free
+solver's rows once. Writes OUT.md and OUT.json atomically, naming the command and the commit.
 """
 
 from __future__ import annotations
@@ -39,9 +40,11 @@ def _validation(run: Path) -> list[dict]:
     return read_metrics(path)
 
 
-def compare(runs: dict[str, Path], checkpoints: dict[str, Path] | None = None, config: Path | None = None) -> dict:
+def compare(runs: dict[str, Path], checkpoints: dict[str, Path] | None = None, config: Path | None = None,
+            passes: list[int] | None = None) -> dict:
     """Every run's held-out rows per validated step, every checkpoint's rows on the validation
-    set of `config`'s data section (step None), and the network-free solver's rows."""
+    set of `config`'s data section (step None; with `passes`, a row per number of network passes,
+    named "NAME, k passes"), and the network-free solver's rows."""
     table, solver = {}, {}
     for name, run in runs.items():
         records = _validation(run)
@@ -59,10 +62,12 @@ def compare(runs: dict[str, Path], checkpoints: dict[str, Path] | None = None, c
         train_config = load_config(TrainConfig, config)
         validator = Validator(DrapeSource(train_config.data, model=train_config.model).validation())
         for name, path in checkpoints.items():
-            row = validator(load_model(path)[0])
-            table[name] = [{"step": None, **{key: row.get(key) for _, key in COLUMNS}}]
+            for k in passes or [None]:
+                row = validator(load_model(path, passes=k)[0])
+                label = name if k is None else f"{name}, {k} pass{'es' if k > 1 else ''}"
+                table[label] = [{"step": None, **{key: row.get(key) for _, key in COLUMNS}}]
     return {"runs": {name: str(path) for name, path in {**runs, **(checkpoints or {})}.items()}, "rows": table,
-            "solver_alone": solver}
+            "solver_alone": solver, **({"passes": passes} if passes else {})}
 
 
 def _markdown(result: dict, command: str, commit: str | None) -> str:
@@ -95,7 +100,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="a model to measure on the validation set now (repeatable)")
     parser.add_argument("--config", type=Path, help="run config whose data section names the validation set "
                         "(needed with --checkpoint)")
+    parser.add_argument("--passes", type=int, nargs="+", help="measure every --checkpoint with each of these numbers "
+                        "of network passes (default: the checkpoint's own)")
     args = parser.parse_args(argv)
+    if args.passes and (not args.checkpoint or min(args.passes) < 1):
+        parser.error("--passes takes numbers ≥ 1 and applies to --checkpoint models")
 
     def named(items: list[str]) -> dict[str, Path]:
         out = {}
@@ -108,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
 
     if not args.runs and not args.checkpoint:
         parser.error("give at least one NAME=RUN_DIR or --checkpoint NAME=DIR")
-    result = compare(named(args.runs), named(args.checkpoint), args.config)
+    result = compare(named(args.runs), named(args.checkpoint), args.config, args.passes)
     command = shlex.join(["python", "-m", "physdrape.train.compare", *(sys.argv[1:] if argv is None else argv)])
     info = provenance()
     commit = info["git_commit"] + (" (with uncommitted changes)" if info["git_dirty"] else "")
