@@ -177,6 +177,8 @@ def load_model(path: str | os.PathLike, *, variant: Variant | None = None,
                                   f"{[v.value for v in Variant]}; {_FIX}") from None
     if variant is not None:
         model_cfg = replace(model_cfg, variant=variant)
+    if passes is not None and (not isinstance(passes, int) or isinstance(passes, bool) or passes < 1):
+        raise CheckpointError(f"passes must be an integer ≥ 1 (network passes before the solver), got {passes!r}")
     if passes is None and config.get("passes") is not None:
         passes = config["passes"]
         if not isinstance(passes, int) or passes < 1:

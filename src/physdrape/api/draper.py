@@ -81,10 +81,8 @@ class Draper:
         follow_planes: the solver's body planes followed between body searches (each found again
             once its sample moved `ModelConfig.follow_min_move`), or held between them as in
             training (`PhysDrape.set_eval_planes`); None: the checkpoint's (`eval_follow_planes`).
-        passes: how many times the network looks at the garment and moves it before the solver
-            (`ModelConfig.passes`: each pass reads its inputs at the garment the passes before it
-            moved); more passes drape better and cost a network pass and its inputs each. None:
-            the checkpoint's.
+        passes: network passes before the solver, each reading its inputs at the garment the passes
+            before it moved (`ModelConfig.passes`; each costs a pass and its inputs); None: the checkpoint's.
         body: an `AnnyBody` (default: ``get_anny_body()``; loaded on first use), or an
             `SMPLBody` (``physdrape.body.smpl_body``): then every drape is on that SMPL body.
         smpl_model: path of an SMPL / SMPL+H / SMPL-X model file (.npz, or a legacy .pkl read by
@@ -105,15 +103,12 @@ class Draper:
             swung into the chest is not.
     """
 
-    def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None,
+    def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None, passes: int | None = None,
                  dtype: torch.dtype = DEFAULT_DTYPE, check_pose: bool = True, arm_contact_tolerance: int = 20,
                  smpl_model: str | Path | None = None, smpl_gender: str = "neutral",
-                 device: str | torch.device = "cpu", follow_planes: bool | None = None,
-                 passes: int | None = None) -> None:
+                 device: str | torch.device = "cpu", follow_planes: bool | None = None) -> None:
         if not isinstance(steps, int) or steps < 0:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
-        if passes is not None and (not isinstance(passes, int) or isinstance(passes, bool) or passes < 1):
-            raise DrapeError(f"passes must be an integer ≥ 1 (network passes before the solver), got {passes!r}")
         if dtype not in (torch.float32, torch.float64):
             raise DrapeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         try:
