@@ -187,6 +187,24 @@ def test_changed_jobs_are_refused_unless_forced_and_richer_outputs_redrape(drape
         run_manifest(draper, path, out)
 
 
+def test_a_folder_draped_with_other_passes_is_stale_and_an_older_report_means_one(draper, tmp_path):
+    """The network's passes change the drape: a folder made with one pass does not count for a run
+    with two; a report written before the record named the passes counts as one pass."""
+    from physdrape.api.manifest_run import job_record, stale_reason
+
+    path = _write(tmp_path / "jobs.jsonl", [{"id": "a"}])
+    out = tmp_path / "out"
+    run_manifest(draper, path, out)
+    [job] = read_manifest(path).jobs
+    record = job_record(draper, job, refine=False)
+    assert record["passes"] == draper.model_config.passes == 1 and stale_reason(out / "a", record) is None
+    assert stale_reason(out / "a", {**record, "passes": 2}) == "its passes is 1, not 2"
+    report = json.loads((out / "a" / "report.json").read_text())
+    del report["passes"]
+    (out / "a" / "report.json").write_text(json.dumps(report))
+    assert stale_reason(out / "a", record) is None
+
+
 def test_a_failing_job_fails_alone_and_is_listed(draper, tmp_path, far_obj):
     path = _write(tmp_path / "jobs.jsonl", [{"id": "ok"}, {"id": "far", "garment": str(far_obj)},
                                             "{bad", {"id": "ok2", "pose": "stand"}])

@@ -98,11 +98,18 @@ def summary_path(out: str | Path, rank: int, world_size: int) -> Path:
     return Path(out) / f"{RESERVED_PREFIX}rank{rank}-of-{world_size}.json"
 
 
+#: Settings the record gained later, and the value every drape made before had: a report without
+#: the key counts as made with it.
+RECORD_DEFAULTS = {"passes": 1}
+
+
 def job_record(draper, job: ManifestJob, *, refine: bool) -> dict[str, Any]:
     """What a job folder's report.json must hold to count as this job's drape: the line's job and
-    the settings that change the drape (model, solver steps, refine, body, garment unit)."""
-    return {"job": job.spec, "checkpoint": str(Path(draper.checkpoint).resolve()), "steps": draper.steps,
-            "refine": bool(refine), "body": "anny" if draper.smpl is None else "smpl", "units": job.units}
+    the settings that change the drape (model, network passes, solver steps, refine, body,
+    garment unit)."""
+    return {"job": job.spec, "checkpoint": str(Path(draper.checkpoint).resolve()),
+            "passes": draper.model_config.passes, "steps": draper.steps, "refine": bool(refine),
+            "body": "anny" if draper.smpl is None else "smpl", "units": job.units}
 
 
 def job_state(folder: Path, record: Mapping[str, Any], outputs: Outputs) -> str:
@@ -128,8 +135,8 @@ def stale_reason(folder: Path, record: Mapping[str, Any]) -> str | None:
     if report.get("job") != record["job"]:
         return "it holds another job (the line changed, or another manifest used this id)"
     for key, value in record.items():
-        if report.get(key) != value:
-            return f"its {key} is {report.get(key)!r}, not {value!r}"
+        if report.get(key, RECORD_DEFAULTS.get(key)) != value:
+            return f"its {key} is {report.get(key, RECORD_DEFAULTS.get(key))!r}, not {value!r}"
     return None
 
 

@@ -308,6 +308,7 @@ def cmd_drape(args: argparse.Namespace) -> int:
         report = {
             "physdrape_version": __version__,
             "checkpoint": str(draper.checkpoint),
+            "passes": draper.model_config.passes,
             "steps": draper.steps,
             "refine": bool(args.refine),
             "shape": (shape or {}) if not smpl else {"betas": shape or "from the AMASS file or 0"},
