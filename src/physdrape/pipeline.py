@@ -376,7 +376,7 @@ class DrapePipeline:
     def layer_pairs(self, template: Template) -> np.ndarray:
         """[outer, inner] vertex pairs where the template's pieces overlap on the canonical body
         (`garments.layering.layer_pairs`), (P, 2) int64 (computed once)."""
-        return self._layering(template)[0]
+        return self._layering(template).pairs
 
     def _layering(self, template: Template) -> layering.LayerPairs:
         """The template's layer pairs and their separation on it [m] (`layering.layer_pairs`)."""
@@ -390,19 +390,33 @@ class DrapePipeline:
     def _layers(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> LayerOrder | None:
         """The batch's layer order: each layered job's pairs, the body normal at the inner vertex
         at X_init, the gap each pair has on the template (`LayerOrder.build`), stiffness
-        `DEFAULT_LAYER_STIFFNESS`; None when none."""
-        layered = [(k, *self._layering(job.template)) for k, job in enumerate(jobs) if job.layers]
-        layered = [(k, p, sep) for k, p, sep in layered if len(p)]
+        `DEFAULT_LAYER_STIFFNESS`, and what `physics.layers.follow_pairs` needs to complete the
+        pairs where the pieces are (each vertex's piece numbered across the batch, which pieces are
+        one garment's, the template's body distances, the faces); None when none."""
+        layered = [(k, self._layering(job.template)) for k, job in enumerate(jobs) if job.layers]
+        layered = [(k, found) for k, found in layered if len(found.pairs)]
         if not layered:
             return None
-        pairs = torch.cat([torch.as_tensor(p, device=batch.device) + batch.vert_offsets[k] for k, p, _ in layered])
-        separation = torch.cat([torch.as_tensor(sep, dtype=x_init.dtype, device=batch.device) for _, _, sep in layered])
-        body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=batch.device)
+        device = batch.device
+        pairs = torch.cat([torch.as_tensor(f.pairs, device=device) + batch.vert_offsets[k] for k, f in layered])
+        separation = torch.cat([torch.as_tensor(f.separation, dtype=x_init.dtype, device=device) for _, f in layered])
+        piece = torch.full((batch.num_verts,), -1, dtype=torch.int64, device=device)
+        depth = torch.zeros(batch.num_verts, dtype=x_init.dtype, device=device)
+        together = torch.block_diag(*(torch.ones(len(f.over), len(f.over)) for _, f in layered)).to(device).bool()
+        first = 0
+        for k, found in layered:
+            start, stop = int(batch.vert_offsets[k]), int(batch.vert_offsets[k + 1])
+            piece[start:stop] = torch.as_tensor(self._parts(jobs[k].template).piece, device=device) + first
+            depth[start:stop] = torch.as_tensor(found.depth, dtype=x_init.dtype, device=device)
+            first += len(found.over)
+        faces = torch.cat([batch.faces[batch.face_garment == k] for k, _ in layered])
+        body_of_job = torch.tensor([job.body for job in jobs], dtype=torch.int64, device=device)
         inner = pairs[:, 1]
         with torch.no_grad():
             normal = bodies.query(x_init[inner].to(bodies.verts.dtype),
                                   body_index=body_of_job[batch.vert_garment[inner]]).normal
-        return LayerOrder.build(pairs, normal.to(x_init.dtype), separation=separation)
+        order = LayerOrder.build(pairs, normal.to(x_init.dtype), separation=separation)
+        return replace(order, piece=piece, together=together, depth=depth, faces=faces)
 
     def _grip(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> Grip | None:
         """The batch's grip: each gripping job's waistband strip anchored at X_init, tangentially to

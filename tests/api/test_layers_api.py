@@ -42,6 +42,14 @@ def test_pipeline_layers_the_tee_over_the_trousers(draper):
     separation = d[pairs[:, 0]] - d[pairs[:, 1]]
     np.testing.assert_allclose(layers.gap.numpy(), np.clip(separation, MIN_LAYER_GAP, DEFAULT_LAYER_GAP))
     assert (layers.gap < DEFAULT_LAYER_GAP).any() and (layers.gap == DEFAULT_LAYER_GAP).any()
+    # what completes the pairs where the pieces are: pieces (the tee's none), the suit's pieces as one
+    # garment's, body distances on the template, the suit's faces
+    assert layers.follows and layers.fixed is None
+    assert bool((layers.piece[:offset] == -1).all())
+    np.testing.assert_array_equal(layers.piece[offset:].numpy(), parts.piece)
+    assert layers.together.tolist() == [[True, True], [True, True]]
+    np.testing.assert_array_equal(layers.faces.numpy(), np.asarray(suit.faces) + offset)
+    np.testing.assert_allclose(layers.depth[offset:].numpy(), d, atol=1e-6)
     # X_init starts with the outer piece pushed out over the inner one: the skinned pieces cross
     skinned = inp.x_init.clone()
     skinned[offset:] = pipeline.x_init(suit, state, 0).to(skinned.dtype)

@@ -32,7 +32,9 @@ def test_each_vertex_is_paired_with_its_nearest_vertices_of_the_other_piece():
     verts = np.concatenate([inner, outer])
     piece = np.repeat([0, 1], len(grid))
     one = layer_pairs(verts, piece, body_v, body_f, neighbours=1).pairs
-    three, separation = layer_pairs(verts, piece, body_v, body_f, neighbours=3)
+    three = layer_pairs(verts, piece, body_v, body_f, neighbours=3)
+    separation = three.separation
+    three = three.pairs
     for pairs in (one, three):
         assert np.all(piece[pairs[:, 0]] == 1) and np.all(piece[pairs[:, 1]] == 0)  # outer over inner
     assert len(three) > len(one)
@@ -66,7 +68,8 @@ def test_pieces_that_agree_order_all_their_near_pairs():
     on their order elsewhere, so those vertices are paired as outer too, with their (negative)
     template separation; without the consensus they would be left unpaired or put inside."""
     verts, piece, body_v, body_f = _two_grids(lambda x, z: np.where(x < 0.05, 0.015, np.where(z > 0.03, 0.003, 0.005)))
-    pairs, separation = layer_pairs(verts, piece, body_v, body_f)
+    pairs, separation, over, _ = layer_pairs(verts, piece, body_v, body_f)
+    np.testing.assert_array_equal(over, [[False, False], [True, False]])  # piece 1 lies over piece 0
     assert np.all(piece[pairs[:, 0]] == 1) and np.all(piece[pairs[:, 1]] == 0)
     edge = np.flatnonzero((piece == 1) & (verts[:, 0] > 0.05))
     assert set(edge.tolist()) <= set(pairs[:, 0].tolist())  # every edge vertex is held outside
@@ -82,6 +85,7 @@ def test_interleaved_pieces_keep_the_per_vertex_order():
     in at the front and out at the back): no consensus, each pair is ordered by its own body
     distances."""
     verts, piece, body_v, body_f = _two_grids(lambda x, z: np.where(x > 0.0, 0.0, 0.015))
-    pairs, separation = layer_pairs(verts, piece, body_v, body_f)
+    pairs, separation, over, _ = layer_pairs(verts, piece, body_v, body_f)
+    assert not over.any()
     assert np.any(piece[pairs[:, 0]] == 0) and np.any(piece[pairs[:, 0]] == 1)
     assert np.all(separation > 0)  # each pair outer by its own distance to the body

@@ -168,3 +168,144 @@ def test_pushing_the_outer_vertices_out_puts_the_layers_in_order_or_within_what_
     torch.testing.assert_close(moved[outer], 1e-2 * layers.normal, rtol=0, atol=1e-12)  # along n, by the shortfall
     allowed = torch.full((8,), 4e-3, dtype=torch.float64)
     torch.testing.assert_close(layer_shortfall(push_outer_out(x, layers, allowed), layers), allowed, rtol=0, atol=1e-12)
+
+
+def _sheet(n: int, size: float, offset) -> tuple[torch.Tensor, torch.Tensor]:
+    """An n × n grid sheet of side `size` [m] in the xz plane at `offset`, its faces facing up."""
+    g = torch.linspace(0.0, size, n, dtype=torch.float64)
+    xx, zz = torch.meshgrid(g, g, indexing="ij")
+    grid = torch.stack([xx.reshape(-1), torch.zeros(n * n, dtype=torch.float64), zz.reshape(-1)], -1)
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            faces += [(a, b, d), (a, d, c)]
+    return grid + torch.tensor(offset, dtype=torch.float64), torch.tensor(faces)
+
+
+def _sheets_order(verts: torch.Tensor, faces: torch.Tensor, n: int, pairs: torch.Tensor | None = None) -> LayerOrder:
+    """The layer order of two n × n sheets (inner first) with the template's `pairs` (default none,
+    their normals up) and what `follow_pairs` needs."""
+    pairs = torch.zeros(0, 2, dtype=torch.int64) if pairs is None else pairs
+    up = torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64).expand(len(pairs), 3)
+    return LayerOrder(pairs, up, torch.full((len(pairs),), 1e-3, dtype=torch.float64),
+                      torch.full((len(pairs),), 1000.0, dtype=torch.float64),
+                      piece=torch.repeat_interleave(torch.arange(2), n * n),
+                      together=torch.ones(2, 2, dtype=torch.bool),
+                      depth=verts[:, 1].clone(), faces=faces)
+
+
+def test_nearest_within_is_the_k_nearest_within_the_radius():
+    """`nearest_within` against scipy's k-d tree."""
+    from scipy.spatial import cKDTree
+
+    from physdrape.physics.layers import nearest_within
+
+    gen = torch.Generator().manual_seed(3)
+    source = torch.rand(200, 3, generator=gen, dtype=torch.float64) * 0.1
+    target = torch.rand(300, 3, generator=gen, dtype=torch.float64) * 0.1
+    i, j = nearest_within(source, target, k=3, radius=0.02, chunk=64)
+    dist, idx = cKDTree(target.numpy()).query(source.numpy(), k=3, distance_upper_bound=0.02)
+    found = torch.from_numpy(dist).isfinite()
+    expected = {(int(a), int(b)) for a, b in zip(torch.arange(200)[:, None].expand(-1, 3)[found],
+                                                 torch.from_numpy(idx)[found])}
+    assert set(zip(i.tolist(), j.tolist())) == expected and len(expected) > 100
+
+
+def test_follow_pairs_hold_each_vertex_on_its_side_of_the_other_sheet():
+    """An outer sheet 6 mm over an inner one and shifted by 2.5 cm (half its side): each outer
+    vertex over the inner sheet is paired with a corner of the face under it, each inner vertex
+    under the outer sheet with a corner of the face over it, in [outer, inner] order, the normal
+    the faces' (up); the vertices beyond the other sheet's border are not paired; a pair's
+    separation along its normal is the sheets' 6 mm. Turned upside down, the same pairs in the
+    other order."""
+    from physdrape.physics.layers import follow_pairs
+
+    n = 11
+    inner, faces = _sheet(n, 0.05, [0.0, 0.0, 0.0])
+    outer, _ = _sheet(n, 0.05, [0.025, 0.006, 0.0])
+    verts, faces = torch.cat([inner, outer]), torch.cat([faces, faces + n * n])
+    layers = _sheets_order(verts, faces, n)
+    pairs, normal = follow_pairs(verts, layers)
+    assert bool((layers.piece[pairs[:, 0]] == 1).all()) and bool((layers.piece[pairs[:, 1]] == 0).all())
+    torch.testing.assert_close(normal, torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64).expand_as(normal))
+    separation = ((verts[pairs[:, 0]] - verts[pairs[:, 1]]) * normal).sum(-1)
+    torch.testing.assert_close(separation, torch.full_like(separation, 0.006))
+    held_outer, held_inner = set(pairs[:, 0].tolist()), set(pairs[:, 1].tolist())
+    over_inner = [v for v in range(n * n, 2 * n * n) if verts[v, 0] <= 0.05 + 1e-9]
+    under_outer = [v for v in range(n * n) if verts[v, 0] >= 0.025 - 1e-9]
+    assert set(over_inner) <= held_outer and len(held_outer) == len(over_inner)
+    assert set(under_outer) <= held_inner
+    flipped = verts * torch.tensor([1.0, -1.0, 1.0], dtype=torch.float64)  # the outer sheet now under
+    pairs_flipped, _ = follow_pairs(flipped, replace(layers, depth=flipped[:, 1].clone()))
+    assert bool((layers.piece[pairs_flipped[:, 0]] == 0).all())
+    assert set(map(tuple, pairs_flipped.flip(1).tolist())) == set(map(tuple, pairs.tolist()))
+
+
+def test_oracle_keeps_a_slid_sheet_on_its_side_of_the_other():
+    """Two sheets over a slab, the outer one authored beside the inner one (only its nearest
+    columns within the template pairs' reach), slid over the inner sheet 3 mm above it, both
+    falling onto the slab: the oracle that completes the pairs where the sheets are
+    (`physics.layers.follow_pairs`) rests the whole outer sheet on the inner one; with the
+    template's pairs alone, the columns that had none fall through it to the slab."""
+    n = 6
+    inner, faces = _sheet(n, 0.05, [0.0, 0.0, 0.0])
+    outer, _ = _sheet(n, 0.05, [0.08, 1e-3, 0.0])
+    batch = GarmentBatch.pack([Garment.from_mesh(inner, faces, dtype=torch.float64),
+                               Garment.from_mesh(outer, faces, dtype=torch.float64)])
+    cloth = Cloth.build(batch)
+    near = (batch.rest[n * n:, None] - batch.rest[None, :n * n]).norm(dim=-1).argmin(1)
+    close = (batch.rest[n * n:] - batch.rest[near]).norm(dim=-1) <= 0.04
+    pairs = torch.stack([torch.arange(n * n, 2 * n * n)[close], near[close]], 1)
+    assert 0 < len(pairs) < n * n
+    follows = _sheets_order(batch.rest, batch.faces, n, pairs)
+    fixed = replace(follows, piece=None, together=None, depth=None, faces=None)
+    x = batch.rest.clone()
+    x[n * n:] += torch.tensor([-0.08, 2e-3, 0.0], dtype=torch.float64)  # over the inner sheet, 3 mm above it
+    corners = torch.tensor([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=torch.float64)
+    verts = corners * torch.tensor([0.5, 0.1, 0.5], dtype=torch.float64) - torch.tensor([0.0, 0.105, 0.0],
+                                                                                        dtype=torch.float64)
+    box = torch.tensor([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                        [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    facing = torch.linalg.cross(verts[box[:, 1]] - verts[box[:, 0]], verts[box[:, 2]] - verts[box[:, 0]])
+    flip = (facing * (verts[box].mean(1) - verts.mean(0))).sum(-1) < 0
+    box[flip] = box[flip].flip(1)
+    bodies = BodySurface(verts, box)  # a slab whose top lies 5 mm under the inner sheet
+    body_index = torch.zeros(2, dtype=torch.int64)
+
+    def separation(r):
+        return r.x[n * n:, 1] - r.x[:n * n, 1]
+
+    held = relax(x, replace(cloth, layers=follows), bodies, body_index, max_iters=60)
+    left = relax(x, replace(cloth, layers=fixed), bodies, body_index, max_iters=60)
+    assert float(separation(held).min()) > 0.9e-3
+    assert float(separation(left).min()) < 0.5e-3
+
+
+def test_the_measured_energy_completes_the_layer_pairs_where_the_pieces_are():
+    """`physics.energy.drape_energies` measures a following layer order with the pairs found at x:
+    an outer sheet 0.5 mm over an inner one (authored 6 mm apart, gap 4 mm) and no template pair
+    has a layer term of ½ k (3.5 mm)² per pair; without what completes the pairs, none."""
+    from physdrape.physics.energy import drape_energies
+    from physdrape.physics.layers import follow_pairs
+
+    n = 6
+    inner, faces = _sheet(n, 0.05, [0.0, 0.0, 0.0])
+    outer, _ = _sheet(n, 0.05, [0.0, 0.006, 0.0])
+    batch = GarmentBatch.pack([Garment.from_mesh(torch.cat([inner, outer]), torch.cat([faces, faces + n * n]),
+                                                 dtype=torch.float64)])
+    layers = _sheets_order(batch.rest, batch.faces, n)
+    x = batch.rest.clone()
+    x[n * n:, 1] = 5e-4
+    verts = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.float64) * 0.01 + 5.0
+    bodies = BodySurface(verts, torch.tensor([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))  # far: no contact
+    body_index = torch.zeros(2 * n * n, dtype=torch.int64)
+
+    def layer_term(order):
+        cloth = replace(Cloth.build(batch), layers=order)
+        return float(drape_energies(x, cloth, bodies, body_index, contact_stiffness=1.0, margin=0.0)["layer"][0])
+
+    pairs, _ = follow_pairs(x, layers)
+    assert len(pairs) >= n * n
+    assert layer_term(layers) == pytest.approx(len(pairs) * 0.5 * 1000.0 * 3.5e-3 ** 2, rel=1e-9)
+    assert layer_term(replace(layers, piece=None)) == 0.0

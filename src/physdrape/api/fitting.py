@@ -94,7 +94,7 @@ def _relax_layered(rest: np.ndarray, faces: np.ndarray, name: str, surface, *, i
 
     cloth = Cloth.build(Garment.from_mesh(rest, faces, name=name, dtype=torch.float64))
     body_verts, body_faces = surface.verts[0].numpy(), surface.faces.numpy()
-    pairs, separation = layer_pairs(rest, garment_parts(rest, faces).piece, body_verts, body_faces)
+    pairs, separation, _, _ = layer_pairs(rest, garment_parts(rest, faces).piece, body_verts, body_faces)
     if len(pairs):
         index = torch.from_numpy(pairs)
         with torch.no_grad():

@@ -21,9 +21,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
+import torch
 
 from physdrape.garments.numpy_geometry import BodyDistance
+from physdrape.physics.layers import FOLLOW_NEIGHBOURS, FOLLOW_RADIUS, nearest_within
 
 __all__ = ["LayerPairs", "layer_pairs"]
 
@@ -31,14 +32,18 @@ __all__ = ["LayerPairs", "layer_pairs"]
 class LayerPairs(NamedTuple):
     """[outer, inner] vertex pairs (P, 2) int64 and how much farther from the body each outer
     vertex is than its inner one on the template [m] (P,): the separation the layers were
-    authored with."""
+    authored with; the pieces' order (K, K) bool (True where piece a lies over piece b by their
+    consensus) and each vertex's distance from the body on the template [m] (V,), from which the
+    pairs that `physics.layers.follow_pairs` adds as the pieces slide take their gaps."""
 
     pairs: np.ndarray
     separation: np.ndarray
+    over: np.ndarray
+    depth: np.ndarray
 
 
 def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, body_faces: np.ndarray, *,
-                radius: float = 0.04, lift: float = 5e-4, neighbours: int = 3,
+                radius: float = FOLLOW_RADIUS, lift: float = 5e-4, neighbours: int = FOLLOW_NEIGHBOURS,
                 consensus: float = 0.9) -> LayerPairs:
     """[outer, inner] vertex pairs of different pieces that overlap on the template.
 
@@ -61,47 +66,40 @@ def layer_pairs(verts: np.ndarray, piece: np.ndarray, body_verts: np.ndarray, bo
     """
     x = np.asarray(verts, np.float64)
     piece = np.asarray(piece)
-    none = LayerPairs(np.zeros((0, 2), np.int64), np.zeros(0))
-    if len(x) == 0 or piece.max(initial=0) == 0:
+    pieces = int(piece.max(initial=0)) + 1
+    none = LayerPairs(np.zeros((0, 2), np.int64), np.zeros(0), np.zeros((pieces, pieces), bool), np.zeros(len(x)))
+    if len(x) == 0 or pieces == 1:
         return none
     a, b = [], []
-    for p in np.unique(piece):  # each vertex's nearest vertex of another piece
+    points = torch.from_numpy(x)
+    for p in np.unique(piece):  # each vertex's nearest vertices of other pieces
         own, other = np.flatnonzero(piece == p), np.flatnonzero(piece != p)
-        dist, idx = cKDTree(x[other]).query(x[own], k=neighbours, distance_upper_bound=radius)
-        dist, idx = dist.reshape(len(own), -1), idx.reshape(len(own), -1)
-        found = np.isfinite(dist)
-        a.append(np.broadcast_to(own[:, None], dist.shape)[found])
-        b.append(other[idx[found]])
+        i, j = (t.numpy() for t in nearest_within(points[own], points[other], k=neighbours, radius=radius))
+        a.append(own[i])
+        b.append(other[j])
     a, b = np.concatenate(a), np.concatenate(b)
     if len(a) == 0:
         return none
     d = BodyDistance(body_verts, body_faces)(x)[0]
     outer = d[a] > d[b] + lift
     inner = d[b] > d[a] + lift
-    a_over = _piece_order(piece[a], piece[b], outer, inner, consensus)
-    outer = np.where(np.isnan(a_over), outer, a_over == 1.0)
-    inner = np.where(np.isnan(a_over), inner, a_over == 0.0)
+    over = _piece_order(piece[a], piece[b], outer, inner, consensus, pieces)
+    a_over, b_over = over[piece[a], piece[b]], over[piece[b], piece[a]]
+    ordered = a_over | b_over
+    outer = np.where(ordered, a_over, outer)
+    inner = np.where(ordered, b_over, inner)
     pairs = np.concatenate([np.stack([a[outer], b[outer]], 1), np.stack([b[inner], a[inner]], 1)])
     pairs = np.unique(pairs.astype(np.int64), axis=0).reshape(-1, 2)
-    return LayerPairs(pairs, d[pairs[:, 0]] - d[pairs[:, 1]])
+    return LayerPairs(pairs, d[pairs[:, 0]] - d[pairs[:, 1]], over, d)
 
 
-
-def _piece_order(pa: np.ndarray, pb: np.ndarray, outer: np.ndarray, inner: np.ndarray, consensus: float) -> np.ndarray:
-    """Per candidate pair (pieces pa, pb; a clearly outside b: `outer`, inside: `inner`): 1 where
-    a's piece lies over b's by the two pieces' consensus, 0 where under it, NaN where the pieces
-    do not agree (or have no clearly layered pair)."""
-    lo, hi = np.minimum(pa, pb), np.maximum(pa, pb)
-    key = lo * (max(int(pa.max()), int(pb.max())) + 1) + hi
-    lo_out = np.where(pa == lo, outer, inner)  # the pair says lo's piece is outside
-    hi_out = np.where(pa == lo, inner, outer)
-    keys, which = np.unique(key, return_inverse=True)
-    votes_lo = np.bincount(which, lo_out, len(keys))
-    votes_hi = np.bincount(which, hi_out, len(keys))
-    clear = np.maximum(votes_lo + votes_hi, 1)
-    lo_over = np.full(len(keys), np.nan)
-    lo_over[votes_lo >= consensus * clear] = 1.0
-    lo_over[votes_hi >= consensus * clear] = 0.0
-    lo_over[votes_lo + votes_hi == 0] = np.nan
-    order = lo_over[which]
-    return np.where(pa == lo, order, 1.0 - order)
+def _piece_order(pa: np.ndarray, pb: np.ndarray, outer: np.ndarray, inner: np.ndarray, consensus: float,
+                 pieces: int) -> np.ndarray:
+    """The pieces' order (pieces, pieces) bool: True at (p, q) where at least `consensus` of the
+    clearly layered candidate pairs of pieces p and q (pa, pb: each pair's pieces; `outer`: a
+    clearly outside b, `inner`: inside) put p outside."""
+    votes = np.zeros((pieces, pieces))
+    np.add.at(votes, (pa, pb), outer)
+    np.add.at(votes, (pb, pa), inner)
+    clear = votes + votes.T
+    return (clear > 0) & (votes >= consensus * clear)

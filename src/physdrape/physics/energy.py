@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from torch import Tensor
 
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.contact import penalty_contact_energy
 from physdrape.physics.forces import energy_terms
+from physdrape.physics.layers import followed
 
 
 def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, *, contact_stiffness: float,
@@ -18,8 +21,11 @@ def drape_energies(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Ten
 
     body_index: body of each vertex (ΣV,). collision is the contact penalty of `physics.contact`
     (k_c = contact_stiffness [J/m³], ε = margin [m]) at the vertices and the face centroids, the
-    oracle's term.
+    oracle's term. A layer order that follows the pieces (`LayerOrder.follows`) is measured with
+    its pairs found at x (`physics.layers.followed`), as the oracle minimises it.
     """
+    if cloth.layers is not None and cloth.layers.follows:
+        cloth = replace(cloth, layers=followed(cloth.layers, x))
     terms = energy_terms(x, cloth)
     out = {
         "strain": terms["strain"],

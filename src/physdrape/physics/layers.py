@@ -11,17 +11,35 @@ least δ outside i along the body's outward normal n at i (held fixed), a one-si
 
 The inner surface is taken as the plane through x_i normal to n_i, which holds while the layers
 slide a few centimetres over each other. k_p [N/m] per pair.
+
+Pieces slide farther than that in a long minimisation (a jacket settling down over trousers), past
+the pairs found on the template, and pass through each other where no pair holds them. A layer
+order built with each vertex's piece, its distance from the body on the template and the faces
+(`LayerOrder.follows`) is completed by pairs found at the current positions (`followed`,
+`follow_pairs`): each vertex near another piece of its garment (within `FOLLOW_RADIUS`) that lies
+over or under that piece's surface (at most `FOLLOW_ASIDE` beside the closest face) is held on the
+side of it where it is, the face's nearest corner its partner and the face's normal the pair's:
+the plane through the corner is the face's own, so the pair holds the vertex off the surface
+itself, not off a plane through a vertex beside it, which on the body's curves (collar,
+shoulders) lies centimetres above the surface. Such pairs keep the pieces from passing through
+each other from where they are (they do not undo a crossing), and hold whichever piece lies
+locally on top (a tie under its collar and over its shirt). The gap comes from the template's
+distances as before (`LayerOrder.with_pairs`). The oracle finds them as it goes
+(`physics.oracle`), and so does the measured energy of every drape (`physics.energy`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
 
-__all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "MIN_LAYER_GAP", "LayerOrder", "layer_energy", "layer_forces",
-           "layer_pair_blocks", "layer_shortfall", "push_outer_out"]
+from physdrape.geometry.closest_point import closest_point_on_indexed_triangles
+
+__all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "FOLLOW_ASIDE", "FOLLOW_NEIGHBOURS", "FOLLOW_RADIUS",
+           "MIN_LAYER_GAP", "LayerOrder", "follow_pairs", "followed", "layer_energy", "layer_forces",
+           "layer_pair_blocks", "layer_shortfall", "nearest_within", "push_outer_out"]
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
@@ -30,6 +48,18 @@ DEFAULT_LAYER_STIFFNESS = 1000.0
 DEFAULT_LAYER_GAP = 4e-3
 #: Least gap [m] of a pair authored closer than `DEFAULT_LAYER_GAP` (`LayerOrder.build`).
 MIN_LAYER_GAP = 1e-3
+#: Largest distance between paired vertices [m] (`garments.layering.layer_pairs`) or between a
+#: vertex and the surface it is held against (`follow_pairs`): pieces hanging loose over each other
+#: come into contact during a drape; measured on the MakeHuman suits, 4 cm covers them.
+FOLLOW_RADIUS = 0.04
+#: On the template each vertex is paired with this many nearest vertices of the other piece: one
+#: leaves the inner sheet free to bulge through between paired vertices, three hold the surface
+#: around it; `follow_pairs` searches the faces around as many.
+FOLLOW_NEIGHBOURS = 3
+#: Largest offset [m] of a vertex from the closest point of another piece's surface across that
+#: face's normal (`follow_pairs`): 0 over a face's interior; beyond the surface's border it grows,
+#: and there the vertex is beside the piece, not over or under it.
+FOLLOW_ASIDE = 0.005
 #: Passes of `push_outer_out`: a piece pushed out may be the inner piece of another pair (a jacket
 #: over a shirt over trousers), which the next pass then pushes.
 PUSH_PASSES = 3
@@ -41,19 +71,57 @@ class LayerOrder:
 
     Attributes:
         pairs: (P, 2) int64 [outer, inner] vertex indices (into the batch's ΣV vertices).
-        normal: unit outward body normal n at the inner vertex (P, 3).
+        normal: unit outward normal n of the pair (P, 3): the body's at the inner vertex on the
+            template's pairs, the face's (`follow_pairs`) on pairs found again.
         gap: the least separation δ [m] (P,).
         stiffness: k [N/m] (P,).
+        piece: each vertex's piece (ΣV,) int64, numbered across the batch (−1: a vertex of a garment
+            without a layer order), or None: the pairs stay those of the template.
+        together: (K, K) bool, True where two pieces belong to one garment (`follow_pairs` pairs
+            their vertices).
+        depth: each vertex's distance from the body on the template [m] (ΣV,): a pair's gap is
+            |depth[o] − depth[i]|, clamped as in `build`.
+        faces: the faces of the garments with a layer order (F, 3) int64 (batch vertex indices).
+        fixed: how many of the pairs, first, are the template's (None: all); `with_pairs` replaces
+            the rest.
     """
 
     pairs: Tensor
     normal: Tensor
     gap: Tensor
     stiffness: Tensor
+    piece: Tensor | None = None
+    together: Tensor | None = None
+    depth: Tensor | None = None
+    faces: Tensor | None = None
+    fixed: int | None = None
 
     def to(self, dtype: torch.dtype | None = None, *, device: torch.device | str | None = None) -> LayerOrder:
+        def move(t, floating):
+            return None if t is None else t.to(device=device, dtype=dtype if floating else None)
+
         return LayerOrder(self.pairs.to(device=device), self.normal.to(device=device, dtype=dtype),
-                          self.gap.to(device=device, dtype=dtype), self.stiffness.to(device=device, dtype=dtype))
+                          self.gap.to(device=device, dtype=dtype), self.stiffness.to(device=device, dtype=dtype),
+                          move(self.piece, False), move(self.together, False), move(self.depth, True),
+                          move(self.faces, False), self.fixed)
+
+    @property
+    def follows(self) -> bool:
+        """Whether `followed` completes the pairs at the current positions."""
+        return self.piece is not None and self.faces is not None
+
+    def with_pairs(self, pairs: Tensor, normal: Tensor) -> LayerOrder:
+        """The template's pairs and these [outer, inner] pairs (P, 2) with their normals (P, 3)
+        (replacing those `with_pairs` added before): gaps from the template's distances (`depth`),
+        the stiffness of the first pair (`DEFAULT_LAYER_STIFFNESS` without any)."""
+        keep = len(self.pairs) if self.fixed is None else self.fixed
+        gap = (self.depth[pairs[:, 0]] - self.depth[pairs[:, 1]]).abs().to(normal.dtype).clamp(MIN_LAYER_GAP,
+                                                                                            DEFAULT_LAYER_GAP)
+        k = self.stiffness[:1] if len(self.stiffness) else torch.full((1,), DEFAULT_LAYER_STIFFNESS)
+        stiffness = k.to(normal.dtype).expand(len(pairs))
+        return replace(self, pairs=torch.cat([self.pairs[:keep], pairs.to(self.pairs.device)]),
+                       normal=torch.cat([self.normal[:keep], normal]), gap=torch.cat([self.gap[:keep], gap]),
+                       stiffness=torch.cat([self.stiffness[:keep], stiffness]), fixed=keep)
 
     @staticmethod
     def build(pairs: Tensor, normal: Tensor, *, separation: Tensor | None = None,
@@ -67,11 +135,101 @@ class LayerOrder:
                                                                                             DEFAULT_LAYER_GAP)
         return LayerOrder(pairs=pairs.to(device=normal.device), normal=normal, gap=gap, stiffness=stiffness * full)
 
-    @staticmethod
-    def cat(parts: list[LayerOrder]) -> LayerOrder:
-        """One set of several (indices already offset into one batch)."""
-        return LayerOrder(*(torch.cat([getattr(p, name) for p in parts])
-                            for name in ("pairs", "normal", "gap", "stiffness")))
+
+
+def nearest_within(source: Tensor, target: Tensor, *, k: int = FOLLOW_NEIGHBOURS, radius: float = FOLLOW_RADIUS,
+                   chunk: int = 1024) -> tuple[Tensor, Tensor]:
+    """Each source point's k nearest target points within `radius` [m]: (source index, target
+    index) of every such pair, (P,) each; source (S, 3), target (T, 3). Brute force in chunks of
+    source rows (pieces of a few thousand vertices: a few tens of ms on a CPU core)."""
+    k = min(k, len(target))
+    rows, cols = [], []
+    if k == 0 or len(source) == 0:
+        empty = torch.zeros(0, dtype=torch.int64, device=source.device)
+        return empty, empty.clone()
+    for start in range(0, len(source), chunk):
+        dist, idx = torch.cdist(source[start:start + chunk], target).topk(k, dim=1, largest=False)
+        keep = dist <= radius
+        rows.append(keep.nonzero()[:, 0] + start)
+        cols.append(idx[keep])
+    return torch.cat(rows), torch.cat(cols)
+
+
+def _faces_of_vertices(faces: Tensor, num_verts: int) -> Tensor:
+    """Each vertex's faces (num_verts, D) int64, −1 where it has fewer than the most (D)."""
+    vertex = faces.reshape(-1)
+    face = torch.arange(len(faces), device=faces.device).repeat_interleave(3)
+    order = torch.argsort(vertex, stable=True)
+    vertex, face = vertex[order], face[order]
+    counts = torch.bincount(vertex, minlength=num_verts)
+    slot = torch.arange(len(vertex), device=faces.device) - (torch.cumsum(counts, 0) - counts)[vertex]
+    table = torch.full((num_verts, max(int(counts.max()), 1)), -1, dtype=torch.int64, device=faces.device)
+    table[vertex, slot] = face
+    return table
+
+
+def _onto_surface(x: Tensor, points: Tensor, near: Tensor, faces: Tensor, around: Tensor) -> tuple[Tensor, Tensor]:
+    """Pairs of `points` (M,) against the faces around their nearest vertices `near` (M, k) (−1:
+    none) of another piece: (pairs [outer, inner] (M', 2), normals (M', 3)): the point and the
+    closest face's nearest corner, the point outer where it lies on the side the face's normal
+    points to; the points farther than `FOLLOW_RADIUS` from those faces or more than
+    `FOLLOW_ASIDE` beside them left out."""
+    candidates = torch.where(near[:, :, None] >= 0, around[near.clamp_min(0)], -1).flatten(1)  # (M, k D)
+    valid = candidates >= 0
+    m, c = candidates.shape
+    at = x[points][:, None, :].expand(m, c, 3).reshape(-1, 3)
+    closest, bary = closest_point_on_indexed_triangles(at, x, faces[candidates.clamp_min(0).reshape(-1)])
+    dist = (at - closest).norm(dim=-1).reshape(m, c).masked_fill(~valid, float("inf"))
+    best = dist.argmin(1)
+    face = candidates[torch.arange(m, device=x.device), best]
+    pick = best + c * torch.arange(m, device=x.device)
+    offset, weight = at[pick] - closest[pick], bary[pick]
+    corners = x[faces[face]]
+    normal = torch.nn.functional.normalize(torch.linalg.cross(corners[:, 1] - corners[:, 0],
+                                                              corners[:, 2] - corners[:, 0]), dim=-1)
+    along = (offset * normal).sum(-1)
+    aside = (offset - along[:, None] * normal).norm(dim=-1)
+    keep = (dist.min(1).values <= FOLLOW_RADIUS) & (aside <= FOLLOW_ASIDE)
+    corner = faces[face, weight.argmax(1)]
+    above = along >= 0
+    pairs = torch.stack([torch.where(above, points, corner), torch.where(above, corner, points)], 1)
+    return pairs[keep], normal[keep]
+
+
+@torch.no_grad()
+def follow_pairs(x: Tensor, layers: LayerOrder) -> tuple[Tensor, Tensor]:
+    """Pairs that hold each vertex on the side of the other pieces' surfaces where it is at x
+    (ΣV, 3) [m]: for every two pieces of one garment (`LayerOrder.together`), each vertex of
+    either against the closest of the faces around its `FOLLOW_NEIGHBOURS` nearest vertices of the
+    other (within `FOLLOW_RADIUS`, at most `FOLLOW_ASIDE` beside it), paired with that face's
+    nearest corner, the face's normal the pair's. Returns ([outer, inner] pairs (P, 2) int64,
+    normals (P, 3)). Needs `layers.follows`."""
+    piece, x = layers.piece, x.detach()
+    around = _faces_of_vertices(layers.faces, len(x))
+    found, normals = [], []
+    for p, q in torch.triu(layers.together, diagonal=1).nonzero().tolist():
+        vp, vq = (piece == p).nonzero()[:, 0], (piece == q).nonzero()[:, 0]
+        for points, others in ((vp, vq), (vq, vp)):
+            near = torch.full((len(points), FOLLOW_NEIGHBOURS), -1, dtype=torch.int64, device=x.device)
+            a, b = nearest_within(x[points], x[others])
+            slot = torch.arange(len(a), device=x.device) - torch.searchsorted(a, a)  # a is sorted
+            near[a, slot] = others[b]
+            has = (near >= 0).any(1)
+            pair, normal = _onto_surface(x, points[has], near[has], layers.faces, around)
+            found.append(pair)
+            normals.append(normal)
+    if not found:
+        return torch.zeros(0, 2, dtype=torch.int64, device=x.device), x.new_zeros(0, 3)
+    return torch.cat(found), torch.cat(normals)
+
+
+def followed(layers: LayerOrder, x: Tensor) -> LayerOrder:
+    """The layer order's template pairs completed by those found at x (ΣV, 3) (`follow_pairs`);
+    `layers` itself where it does not follow."""
+    if not layers.follows:
+        return layers
+    pairs, normal = follow_pairs(x, layers)
+    return layers.with_pairs(pairs, normal.to(layers.normal.dtype))
 
 
 def layer_shortfall(x: Tensor, layers: LayerOrder) -> Tensor:
