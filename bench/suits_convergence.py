@@ -14,8 +14,8 @@ X_init, 0 at the reference; a suit's E_total itself can be near 0 or negative, i
 being measured from the evaluation's datum), the set's E_total over the reference as
 `results/eval.md` gives it (the mean over the suits over the references' mean), and each drape's
 piece crossings (intersecting face
-pairs whose faces belong to different pieces: the layer order's pairs are fixed on the template,
-so a piece that slides far over another can pass through it unseen by the energy). With the
+pairs whose faces belong to different pieces: the solver's layer pairs are the template's, so a
+piece that slides far over another could pass through it unseen by its energy). With the
 polish (the default), the oracle is run again from the model's T = 15 drape with the evaluation's
 settings, as the evaluation's refinement is: its E_total, its crossings, and per piece the mean
 vertical move [mm] from the T = 15 drape to it, which says what the steps leave unsettled. One

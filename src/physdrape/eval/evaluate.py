@@ -144,8 +144,8 @@ class Contact(NamedTuple):
 
 def _metrics(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> dict[str, float]:
     """The drape's metrics and E_total; for a garment of several pieces, also its piece crossings
-    (`garments.intersections.piece_crossings`: the layer order's pairs, fixed on the template, do
-    not see a piece that has slid through another)."""
+    (`garments.intersections.piece_crossings`: the layer order's pairs hold each vertex on its side,
+    and do not see a piece that is already through another)."""
     m = drape_metrics(x, batch.garments, batch.bodies, batch.body_index, cloth=batch.cloth)
     out = {name: values[0] for name, values in m.as_dict().items()}
     out["energy_total"] = float(total_energy(x, batch, contact)[0])

@@ -140,9 +140,11 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
     out.append("Energies are means over instances under the default material; E_total = E_strain + E_bend + E_grav + "
                "contact penalty (what the oracle minimises), plus, for the MakeHuman garments, worn as `Draper.drape` "
                "wears an .mhclo (sized to fit, waistband gripped, closures stitched, pieces kept in their layer "
-               "order), the grip, stitch and layer-order terms; their piece crossings: the face pairs of two "
-               "different pieces that intersect, summed over the instances (the layer order's pairs are fixed on "
-               "the template and do not see a piece that has slid through another). Ratios: row mean / reference "
+               "order), the grip, stitch and layer-order terms (the template's layer pairs completed by those "
+               "found where the pieces are, as the oracle minimises it: `physics.layers.follow_pairs`); their "
+               "piece crossings: the face pairs of two different pieces that intersect, summed over the "
+               "instances (the energy does not see a piece that is already through another). Ratios: row mean / "
+               "reference "
                "mean on the same instances. residual: mean |F_int| over vertices > 3 mm from the body. The oracle's "
                "wall time is a lower bound where it stopped on its budget instead of converging.")
     cache = results.get("reference_cache")
