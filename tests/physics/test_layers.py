@@ -85,11 +85,9 @@ def test_layers_are_part_of_the_shared_energy(tube):
     assert Cloth.build(tube).with_terms_of(layered).layers is not None
 
 
-def test_oracle_keeps_the_outer_sheet_outside():
-    """Two flat sheets, the outer authored 1 mm above the inner, started 3 mm below it (through it):
-    with the layer order the oracle puts the outer back outside; without it, it stays through."""
-    n = 6
-    g = torch.linspace(0.0, 0.05, n, dtype=torch.float64)
+def _sheet(n: int, size: float, offset) -> tuple[torch.Tensor, torch.Tensor]:
+    """An n × n grid sheet of side `size` [m] in the xz plane at `offset`, its faces facing up."""
+    g = torch.linspace(0.0, size, n, dtype=torch.float64)
     xx, zz = torch.meshgrid(g, g, indexing="ij")
     grid = torch.stack([xx.reshape(-1), torch.zeros(n * n, dtype=torch.float64), zz.reshape(-1)], -1)
     faces = []
@@ -97,7 +95,14 @@ def test_oracle_keeps_the_outer_sheet_outside():
         for j in range(n - 1):
             a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
             faces += [(a, b, d), (a, d, c)]
-    faces = torch.tensor(faces)
+    return grid + torch.tensor(offset, dtype=torch.float64), torch.tensor(faces)
+
+
+def test_oracle_keeps_the_outer_sheet_outside():
+    """Two flat sheets, the outer authored 1 mm above the inner, started 3 mm below it (through it):
+    with the layer order the oracle puts the outer back outside; without it, it stays through."""
+    n = 6
+    grid, faces = _sheet(n, 0.05, [0.0, 0.0, 0.0])
     inner = Garment.from_mesh(grid, faces, dtype=torch.float64)
     outer = Garment.from_mesh(grid + torch.tensor([0.0, 1e-3, 0.0], dtype=torch.float64), faces, dtype=torch.float64)
     batch = GarmentBatch.pack([inner, outer])
@@ -168,19 +173,6 @@ def test_pushing_the_outer_vertices_out_puts_the_layers_in_order_or_within_what_
     torch.testing.assert_close(moved[outer], 1e-2 * layers.normal, rtol=0, atol=1e-12)  # along n, by the shortfall
     allowed = torch.full((8,), 4e-3, dtype=torch.float64)
     torch.testing.assert_close(layer_shortfall(push_outer_out(x, layers, allowed), layers), allowed, rtol=0, atol=1e-12)
-
-
-def _sheet(n: int, size: float, offset) -> tuple[torch.Tensor, torch.Tensor]:
-    """An n × n grid sheet of side `size` [m] in the xz plane at `offset`, its faces facing up."""
-    g = torch.linspace(0.0, size, n, dtype=torch.float64)
-    xx, zz = torch.meshgrid(g, g, indexing="ij")
-    grid = torch.stack([xx.reshape(-1), torch.zeros(n * n, dtype=torch.float64), zz.reshape(-1)], -1)
-    faces = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            faces += [(a, b, d), (a, d, c)]
-    return grid + torch.tensor(offset, dtype=torch.float64), torch.tensor(faces)
 
 
 def _sheets_order(verts: torch.Tensor, faces: torch.Tensor, n: int, pairs: torch.Tensor | None = None) -> LayerOrder:
