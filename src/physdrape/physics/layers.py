@@ -117,7 +117,8 @@ class LayerOrder:
         keep = len(self.pairs) if self.fixed is None else self.fixed
         gap = (self.depth[pairs[:, 0]] - self.depth[pairs[:, 1]]).abs().to(normal.dtype).clamp(MIN_LAYER_GAP,
                                                                                             DEFAULT_LAYER_GAP)
-        k = self.stiffness[:1] if len(self.stiffness) else torch.full((1,), DEFAULT_LAYER_STIFFNESS)
+        k = self.stiffness[:1] if len(self.stiffness) else torch.full((1,), DEFAULT_LAYER_STIFFNESS,
+                                                                         device=normal.device)
         stiffness = k.to(normal.dtype).expand(len(pairs))
         return replace(self, pairs=torch.cat([self.pairs[:keep], pairs.to(self.pairs.device)]),
                        normal=torch.cat([self.normal[:keep], normal]), gap=torch.cat([self.gap[:keep], gap]),
