@@ -82,6 +82,28 @@ def test_a_changed_setting_material_body_or_start_misses():
     assert len({key, *others}) == len(others) + 1
 
 
+def test_the_key_of_a_following_layer_order_names_how_often_the_oracle_searches_it(monkeypatch):
+    """A layer order that the oracle completes as it goes (`LayerOrder.follows`) keys its entry by
+    how far a vertex moves before the oracle searches the pairs again; a fixed one does not."""
+    import physdrape.eval.reference_cache as reference_cache
+
+    batch = sheet_on_box()
+    settings = oracle_settings(CONFIG, CONTACT)
+    fixed = LayerOrder.build(torch.tensor([[0, 1]]), torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64))
+    follows = replace(fixed, piece=torch.zeros(batch.cloth.num_verts, dtype=torch.int64),
+                      together=torch.ones(1, 1, dtype=torch.bool), depth=torch.zeros(batch.cloth.num_verts,
+                                                                                      dtype=torch.float64),
+                      faces=batch.garments.faces)
+    keys = {}
+    for name, layers in (("fixed", fixed), ("follows", follows)):
+        layered = replace(batch, cloth=replace(batch.cloth, layers=layers))
+        before = reference_key(layered, batch.x_init, settings)
+        monkeypatch.setattr(reference_cache, "FOLLOW_MOVE", 2 * reference_cache.FOLLOW_MOVE)
+        keys[name] = (before, reference_key(layered, batch.x_init, settings))
+        monkeypatch.undo()
+    assert keys["fixed"][0] == keys["fixed"][1] and keys["follows"][0] != keys["follows"][1]
+
+
 def test_a_changed_setting_runs_the_oracle_again(tmp_path):
     batch, cache = sheet_on_box(), ReferenceCache(tmp_path)
     skinned_oracle(batch, None, CONFIG, CONTACT, cache)

@@ -6,7 +6,9 @@ from the model's drape. An entry is named by a digest (`reference_key`) of every
 depends on: the start positions, the garment (rest positions, faces, every per-element
 coefficient of its material, its grip, stitches and layer order: the whole `Cloth`), the posed
 body (vertices, faces) and the oracle's settings (contact model, stiffness, margin, tolerance,
-iteration cap, wall-time budget, dtype), with `CACHE_FORMAT` and the physdrape version. Change
+iteration cap, wall-time budget, dtype; for a garment whose layer pairs the oracle completes as
+it goes, how far a vertex moves before it searches them again), with `CACHE_FORMAT` and the
+physdrape version. Change
 any of them and the entry is missed; `relax`'s code is not in the digest: bump `CACHE_FORMAT`
 when its results change.
 
@@ -31,6 +33,7 @@ import torch
 import physdrape
 from physdrape.atomic import write_bytes, write_text
 from physdrape.model import DrapeInput
+from physdrape.physics.oracle.newton import FOLLOW_MOVE
 
 __all__ = ["CACHE_FORMAT", "ReferenceCache", "reference_key"]
 
@@ -50,6 +53,9 @@ def reference_key(batch: DrapeInput, start: torch.Tensor, settings: dict) -> str
     digest = hashlib.sha256()
     head = {"format": CACHE_FORMAT, "physdrape": physdrape.__version__, "settings": settings,
             "num_garments": batch.cloth.num_garments}
+    layers = batch.cloth.layers
+    if layers is not None and layers.follows:  # when the oracle searches the layer pairs again
+        head["layer_search_move_m"] = FOLLOW_MOVE
     digest.update(json.dumps(head, sort_keys=True).encode())
     tensors = {"start": start, "garment.rest": batch.garments.rest, "garment.faces": batch.garments.faces,
                "body.verts": batch.bodies.verts, "body.faces": batch.bodies.faces, "body_index": batch.body_index}
