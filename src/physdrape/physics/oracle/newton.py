@@ -143,15 +143,11 @@ class _Newton:
         # the regularisation in use and the schedule of exact-Hessian attempts (see `direction`)
         self.reg = regularization
         self.exact_wait, self.exact_backoff = 0, 1
+        self.follows = cloth.layers is not None and cloth.layers.follows  # layer pairs found as it goes
 
-    def follow_layers(self, x: Tensor) -> bool:
-        """Find the layer order's pairs again at x (`physics.layers.followed`); whether it follows
-        the pieces (and so the energy may have changed)."""
-        layers = self.cloth.layers
-        if layers is None or not layers.follows:
-            return False
-        self.cloth = replace(self.cloth, layers=followed(layers, x))
-        return True
+    def follow_layers(self, x: Tensor) -> None:
+        """Find the layer order's pairs again at x (`physics.layers.followed`; `self.follows`)."""
+        self.cloth = replace(self.cloth, layers=followed(self.cloth.layers, x))
 
     # ----------------------------------------------------------------------------- energies
     def total_energy(self, x: Tensor, contact_energy_g: Tensor) -> tuple[Tensor, dict]:
@@ -345,7 +341,8 @@ class _Newton:
         """Iterate from x (ΣV, 3) float64 until converged or out of budget: (x, terms, energy (G,),
         history, timings, reason, converged, residual (G,))."""
         G, dt, tol, energy_tol = self.num_garments, x.dtype, self.tol, self.energy_tol
-        self.follow_layers(x)
+        if self.follows:
+            self.follow_layers(x)
         searched = x  # where the layer pairs were last searched
         st, grad, e_c, hess_c, res_g, res_all_g = self.gradient_state(x)
         energy, terms = self.total_energy(x, e_c)
@@ -357,7 +354,8 @@ class _Newton:
         reason, converged = "max_iters", False
         change_g = torch.full((G,), math.inf, dtype=dt)
         for it in range(1, max_iters + 1):
-            if float((x - searched).norm(dim=-1).max()) > FOLLOW_MOVE and self.follow_layers(x):
+            if self.follows and float((x - searched).norm(dim=-1).max()) > FOLLOW_MOVE:
+                self.follow_layers(x)
                 searched = x  # the pieces moved: the pairs where they are change the energy
                 st, grad, e_c, hess_c, res_g, res_all_g = self.gradient_state(x)
                 energy, terms = self.total_energy(x, e_c)
