@@ -1,0 +1,158 @@
+"""Where the model's drapes lie above the converged reference on the test split: per energy term,
+the collision handler's share, and how the excess shrinks with the solver's steps.
+
+Run: .venv/bin/python bench/excess_breakdown.py [--eval results/eval.json]
+     [--checkpoint src/physdrape/assets/models/cpu_default] [--steps 3 15 30 60] [--instances N]
+     [--out results/excess_breakdown]
+
+The instances are the evaluation's test instances (`physdrape.eval.instances.split_instances`,
+the first `--instances`, default all of the record's), their references those of the evaluation
+record `--eval` (per instance the lower E_total of the oracle from the skinned start and the
+oracle refining the model's T = 15 drape). Per T, the model (GNN → solver T → handler) and the
+same weights without the handler (`Variant.GNN_SOLVER`: the solver's drape before the handler
+pushes the vertices within the margin ε out to δ ε): the set's mean E_total over the references'
+mean, as `results/eval.md` gives it, and the excess over the reference split into the energy
+terms (strain, bending, gravity with the contact penalty), each as a share of the references'
+mean. The handler's share is the part of the model's excess that the handler adds: the contact
+penalty lets a garment rest a fraction of a millimetre inside the margin where the body holds it
+up, the handler lifts it out (DESIGN.md: the handler's margin is the penalty's ε), which costs
+strain and gravity energy that the reference, an equilibrium of the penalty, does not pay. One
+torch thread. Writes <out>.md and <out>.json with the command and the commit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from report import source_lines, write_report
+
+from physdrape.checkpoint import load_model
+from physdrape.eval import evaluate as ev
+from physdrape.eval.config import EvalConfig
+from physdrape.eval.instances import split_instances
+from physdrape.model import Variant
+from physdrape.physics.forces import energy_terms
+from physdrape.provenance import provenance
+
+#: The model's variants measured: with the collision handler (the drape) and without it.
+VARIANTS = {"model": Variant.FULL, "no handler": Variant.GNN_SOLVER}
+
+
+def measure(x: torch.Tensor, batch, contact: ev.Contact) -> dict:
+    """E_total [J] of a drape and its strain, bending and gravity-with-contact parts."""
+    terms = {name: float(value.sum()) for name, value in energy_terms(x, batch.cloth).items()}
+    total = float(ev.total_energy(x, batch, contact)[0])
+    metrics = ev._metrics(x, batch, contact)
+    return {"energy_total": total, "strain": terms["strain"], "bend": terms["bend"],
+            "gravity_contact": total - terms["strain"] - terms["bend"], "b2g_percent": metrics["b2g_percent"]}
+
+
+def reference_terms(ref: dict) -> dict:
+    """The same parts of a reference record of the evaluation."""
+    return {"energy_total": ref["energy_total"], "strain": ref["strain"], "bend": ref["bend"],
+            "gravity_contact": ref["energy_total"] - ref["strain"] - ref["bend"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--eval", default="results/eval.json", help="the evaluation record holding the references")
+    parser.add_argument("--checkpoint", default="src/physdrape/assets/models/cpu_default")
+    parser.add_argument("--steps", type=int, nargs="+", default=[3, 15, 30, 60])
+    parser.add_argument("--instances", type=int, default=None, help="the first N test instances (default: all)")
+    parser.add_argument("--out", default="results/excess_breakdown")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    record = json.loads(Path(args.eval).read_text())
+    test = record["sets"].get("test", {})
+    if not test.get("reference"):
+        raise SystemExit(f"{args.eval} has no test set with references: run `physdrape eval` with the oracle")
+    settings = record["config"]
+    described, references = test["instances"], test["reference"]["per_instance"]
+    count = len(described) if args.instances is None else min(args.instances, len(described))
+    config = EvalConfig(instances=len(described), seed=settings["seed"],
+                        poses_per_garment=settings["poses_per_garment"], split_dir=settings["split_dir"],
+                        max_garments=settings["max_garments"], dtype=settings["dtype"])
+    models = {name: load_model(args.checkpoint, variant=variant)[0] for name, variant in VARIANTS.items()}
+    contact = ev.Contact.of(models["model"])
+    from physdrape.body.anny_body import get_anny_body
+
+    instances = split_instances(config, get_anny_body())[:count]
+    if [inst.garment for inst in instances] != [d["garment"] for d in described[:count]]:
+        raise SystemExit(f"the test instances of this checkout are not those of {args.eval}")
+    rows = []
+    for inst, ref in zip(instances, references[:count]):
+        batch = inst.batch().drape
+        row = {"garment": inst.garment, "category": inst.category, "reference": reference_terms(ref), "steps": {}}
+        with torch.no_grad():
+            for steps in args.steps:
+                row["steps"][str(steps)] = {name: measure(ev.run_model(model, batch, steps=steps)[0], batch, contact)
+                                            for name, model in models.items()}
+        rows.append(row)
+        print(f"[excess] {inst.garment}: " + ", ".join(
+            f"T={t} {c['model']['energy_total'] / row['reference']['energy_total']:.4f}"
+            for t, c in row["steps"].items()), file=sys.stderr, flush=True)
+
+    def mean(values) -> float:
+        return float(np.mean(list(values)))
+
+    ref_mean = mean(row["reference"]["energy_total"] for row in rows)
+    parts = ("strain", "bend", "gravity_contact")
+    summary = {}
+    for t in args.steps:
+        cell = {}
+        for name in VARIANTS:
+            drapes = [row["steps"][str(t)][name] for row in rows]
+            cell[name] = {"ratio": mean(d["energy_total"] for d in drapes) / ref_mean,
+                          "b2g_percent": mean(d["b2g_percent"] for d in drapes),
+                          **{f"{part}_excess": mean(d[part] - row["reference"][part] for d, row in zip(drapes, rows))
+                             / ref_mean for part in parts}}
+        excess = cell["model"]["ratio"] - 1.0
+        cell["handler_share"] = (cell["model"]["ratio"] - cell["no handler"]["ratio"]) / excess if excess else None
+        summary[str(t)] = cell
+    prov = provenance()
+    command = " ".join(["python", *map(shlex.quote, sys.argv)])
+    load = os.getloadavg()
+    lines = ["# The test split's excess over the converged reference: per term, the handler's share, against T", "",
+             *source_lines(command, prov),
+             f"Checkpoint `{args.checkpoint}`; {len(rows)} test instances and their references from `{args.eval}` "
+             f"(its commit {record['versions']['git_commit'][:7]}); one torch thread; load average at the end "
+             f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
+             "E / ref: the set's mean E_total over the references' mean (as `results/eval.md`). model: GNN → "
+             "solver T → handler; no handler: the same drape before the handler. Excess per term: the mean of "
+             "(term − the reference's term) over the references' mean E_total, in percent; the three add up to "
+             "(E / ref − 1). Handler's share: the part of the model's excess that the handler adds.", "",
+             "| T | model E / ref | no handler E / ref | handler's share | strain excess [%] | bending excess [%] "
+             "| gravity + contact excess [%] | no handler: strain / bending / gravity + contact [%] "
+             "| B2G [%] model / no handler |",
+             "|---:|---:|---:|---:|---:|---:|---:|---|---|"]
+    for t in args.steps:
+        c = summary[str(t)]
+        m, n = c["model"], c["no handler"]
+        share = "–" if c["handler_share"] is None else f"{100 * c['handler_share']:.0f} %"
+        lines.append(f"| {t} | {m['ratio']:.4f} | {n['ratio']:.4f} | {share} | {100 * m['strain_excess']:+.2f} | "
+                     f"{100 * m['bend_excess']:+.2f} | {100 * m['gravity_contact_excess']:+.2f} | "
+                     f"{100 * n['strain_excess']:+.2f} / {100 * n['bend_excess']:+.2f} / "
+                     f"{100 * n['gravity_contact_excess']:+.2f} | {m['b2g_percent']:.2f} / {n['b2g_percent']:.2f} |")
+    lines += ["", "Per instance, the model's E_total over its reference:", "",
+              "| instance | category | reference [J] | " + " | ".join(f"T = {t}" for t in args.steps)
+              + " | no handler, T = " + str(args.steps[-1]) + " |",
+              "|---|---|---:|" + "---:|" * (len(args.steps) + 1)]
+    for row in rows:
+        ref = row["reference"]["energy_total"]
+        cells = [f"{row['steps'][str(t)]['model']['energy_total'] / ref:.4f}" for t in args.steps]
+        last = row["steps"][str(args.steps[-1])]["no handler"]["energy_total"] / ref
+        lines.append(f"| {row['garment']} | {row['category']} | {ref:.4f} | " + " | ".join(cells) + f" | {last:.4f} |")
+    write_report(args.out, lines, {"command": command, "provenance": prov, "eval": args.eval,
+                                   "checkpoint": args.checkpoint, "steps": args.steps, "load_average": list(load),
+                                   "summary": summary, "instances": rows})
+
+
+if __name__ == "__main__":
+    main()
