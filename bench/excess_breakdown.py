@@ -25,13 +25,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
 import torch
-from report import source_lines, write_report
+from report import page_head, write_report
 
 from physdrape.checkpoint import load_model
 from physdrape.eval import evaluate as ev
@@ -39,7 +38,6 @@ from physdrape.eval.config import EvalConfig
 from physdrape.eval.instances import split_instances
 from physdrape.model import Variant
 from physdrape.physics.forces import energy_terms
-from physdrape.provenance import provenance
 
 #: The model's variants measured: with the collision handler (the drape) and without it.
 VARIANTS = {"model": Variant.FULL, "no handler": Variant.GNN_SOLVER}
@@ -116,11 +114,10 @@ def main() -> None:
         excess = cell["model"]["ratio"] - 1.0
         cell["handler_share"] = (cell["model"]["ratio"] - cell["no handler"]["ratio"]) / excess if excess else None
         summary[str(t)] = cell
-    prov = provenance()
-    command = " ".join(["python", *map(shlex.quote, sys.argv)])
+    command, prov, head = page_head("The test split's excess over the converged reference: per term, the handler's "
+                                    "share, against T")
     load = os.getloadavg()
-    lines = ["# The test split's excess over the converged reference: per term, the handler's share, against T", "",
-             *source_lines(command, prov),
+    lines = [*head,
              f"Checkpoint `{args.checkpoint}`; {len(rows)} test instances and their references from `{args.eval}` "
              f"(its commit {record['versions']['git_commit'][:7]}); one torch thread; load average at the end "
              f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",

@@ -28,14 +28,13 @@ import argparse
 import glob
 import json
 import os
-import shlex
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
-from report import source_lines, write_report
+from report import page_head, write_report
 
 from physdrape.api.specs import garment_template
 from physdrape.checkpoint import load_model
@@ -46,7 +45,6 @@ from physdrape.garments.intersections import piece_crossings
 from physdrape.garments.pieces import garment_parts
 from physdrape.model import Variant
 from physdrape.physics.forces import energy_terms
-from physdrape.provenance import provenance
 
 
 def crossings(x: torch.Tensor, faces: np.ndarray, piece: np.ndarray) -> int:
@@ -129,11 +127,10 @@ def main() -> None:
         rows.append(row)
         print(f"[suits] {inst.garment}: " + ", ".join(
             f"T={t} {c['model']['gap_left']:.3f}" for t, c in row["steps"].items()), file=sys.stderr, flush=True)
-    prov = provenance()
-    command = " ".join(["python", *map(shlex.quote, sys.argv)])
+    command, prov, head = page_head("The MakeHuman suits: E_total against solver steps, piece crossings, what the "
+                                    "polish moves")
     load = os.getloadavg()
-    lines = ["# The MakeHuman suits: E_total against solver steps, piece crossings, what the polish moves", "",
-             *source_lines(command, prov),
+    lines = [*head,
              f"Checkpoint `{args.checkpoint}`; references from `{args.eval}` (its commit "
              f"{record['versions']['git_commit'][:7]}); one torch thread; load average at the end "
              f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
