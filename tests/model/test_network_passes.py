@@ -29,6 +29,9 @@ def test_the_second_pass_reads_the_garment_the_first_moved(two_tubes):
     torch.testing.assert_close(out.f_hat, last[:, 3:] * weight[:, None], rtol=1e-5, atol=1e-10)
     # not one pass twice as long: the second pass's inputs differ from the first's
     assert float((last - _pass(model, batch, batch.x_init)).abs().max()) > 1e-6
+    # the first pass's drape is kept for a loss on it
+    assert len(out.earlier_passes) == 1
+    torch.testing.assert_close(out.earlier_passes[0], first, rtol=1e-5, atol=1e-8)
 
 
 def test_one_pass_is_the_plain_network(two_tubes):
@@ -36,7 +39,29 @@ def test_one_pass_is_the_plain_network(two_tubes):
     model = PhysDrape(ModelConfig(**{**MODEL.__dict__, "passes": 1})).eval()
     batch = make_input(two_tubes, [0.15, 0.13])
     expected = batch.x_init + MODEL.displacement_scale * _pass(model, batch, batch.x_init)[:, :3]
-    torch.testing.assert_close(model(batch).x_gnn, expected, rtol=1e-6, atol=1e-9)
+    out = model(batch)
+    torch.testing.assert_close(out.x_gnn, expected, rtol=1e-6, atol=1e-9)
+    assert out.earlier_passes == ()
+
+
+def test_the_loss_on_each_pass_adds_the_earlier_passes_energies(two_tubes):
+    torch.manual_seed(0)
+    model = PhysDrape(MODEL).eval()
+    batch = make_input(two_tubes, [0.15, 0.13])
+    out = model(batch)
+    args = (batch.cloth, batch.bodies, batch.body_index)
+    plain, _ = drape_loss(out.x, *args, LossConfig(), **CONTACT)
+    first, _ = drape_loss(out.earlier_passes[0], *args, LossConfig(), **CONTACT)
+    each, logged = drape_loss(out.x, *args, LossConfig(earlier_passes_weight=0.5), earlier_passes=out.earlier_passes,
+                              **CONTACT)
+    torch.testing.assert_close(each, plain + 0.5 * first)
+    torch.testing.assert_close(logged["earlier_passes"], first)
+    assert float((first - plain).abs()) > 1e-6  # the passes' drapes differ: the check can fail
+    # without the earlier drapes (one pass) the term adds nothing
+    alone, _ = drape_loss(out.x, *args, LossConfig(earlier_passes_weight=0.5), **CONTACT)
+    torch.testing.assert_close(alone, plain)
+    with pytest.raises(ValueError, match="earlier_passes_weight"):
+        LossConfig(earlier_passes_weight=-1.0)
 
 
 def test_training_two_passes_lowers_the_energy(two_tubes):

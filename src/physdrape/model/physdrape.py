@@ -54,13 +54,16 @@ class DrapeOutput:
     """x: the drape X* [m] (ΣV, 3); x_gnn: X_init + Δx (with the layer order kept, `PhysDrape.forward`);
     f_hat: f̂ [N] (ΣV, 3); trace: solver states; bound: the `DistanceBound` of the solver's last
     full body query (vertices, then face centroids; None without one), for later queries of x to
-    skip what is far from the body."""
+    skip what is far from the body; earlier_passes: with `ModelConfig.passes` > 1, X_init plus
+    the moves of the passes before the last, one (ΣV, 3) per pass (a loss on them trains each
+    pass to drape on its own, `train.loss.LossConfig.earlier_passes_weight`)."""
 
     x: Tensor
     x_gnn: Tensor
     f_hat: Tensor
     trace: tuple[Tensor, ...]
     bound: DistanceBound | None = None
+    earlier_passes: tuple[Tensor, ...] = ()
 
 
 #: The most vertices the network processes as one piece of a batch (`network_parts`): a
@@ -152,8 +155,10 @@ class PhysDrape(nn.Module):
         cfg = self.config
         # forces in units of each vertex's weight: the support a vertex needs is of that order
         weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
-        x_gnn = batch.x_init
+        x_gnn, earlier = batch.x_init, []
         for k in range(cfg.passes):
+            if k:
+                earlier.append(x_gnn)
             # a later pass reads its inputs at the garment the passes before it moved (forces,
             # normals, body distances, edges there), held constant in the gradient: it learns to
             # correct what it sees, and the earlier passes are trained through its move only
@@ -175,7 +180,8 @@ class PhysDrape(nn.Module):
             # layer-order shortfall over X_init's (as the collision handler's layer pass)
             x_gnn = push_outer_out(x_gnn, layers, allowed=layer_shortfall(batch.x_init, layers))
         f_hat = out[:, 3:] * weight[:, None]  # the last pass's
-        return self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)
+        out = self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)
+        return replace(out, earlier_passes=tuple(earlier)) if earlier else out
 
     def physics_only(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
         """The model's solver steps (Δx = 0, f̂ = 0) and collision handler from X_init, without the

@@ -47,6 +47,12 @@ class LossConfig:
     makes. Its only fixed point is a drape the solver does not move, an equilibrium; physics alone
     makes the target. 0 = off (the shipped recipe's choice: docs/training/README.md says what the
     term gave).
+
+    earlier_passes_weight: with `ModelConfig.passes` > 1, adds per garment this weight × the energy
+    (the same terms, scaled alike) at each earlier pass's drape X_init + Δx (`DrapeOutput.
+    earlier_passes`). Trained through the last pass's move only, the first pass stops draping on
+    its own and leaves the work to the later ones; with the term every pass learns to drape, the
+    later ones from where the earlier left the garment. 0 = the loss at the last drape only.
     """
 
     per_garment_scale: str = "none"
@@ -54,6 +60,7 @@ class LossConfig:
     teacher_levels: int = 0
     lookahead_weight: float = 0.0
     lookahead_steps: int = 3
+    earlier_passes_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if self.per_garment_scale not in ("none", "initial"):
@@ -66,6 +73,8 @@ class LossConfig:
         if not self.lookahead_weight >= 0 or self.lookahead_steps < 1:
             raise ValueError(f"LossConfig needs lookahead_weight ≥ 0 [J/m²] and lookahead_steps ≥ 1, got "
                              f"{self.lookahead_weight!r} and {self.lookahead_steps!r}")
+        if not self.earlier_passes_weight >= 0:
+            raise ValueError(f"LossConfig.earlier_passes_weight must be ≥ 0, got {self.earlier_passes_weight!r}")
 
 
 def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth, levels: int = 0) -> Tensor:
@@ -90,7 +99,8 @@ def lookahead_target(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: T
 
 def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig,
                x_init: Tensor | None = None, *, contact_stiffness: float, margin: float,
-               teacher: Tensor | None = None, lookahead: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
+               teacher: Tensor | None = None, lookahead: Tensor | None = None,
+               earlier_passes: tuple[Tensor, ...] = ()) -> tuple[Tensor, dict[str, Tensor]]:
     """The training loss: the sum of the terms per garment (divided by the garment's scale when
     `config.per_garment_scale` is "initial", which needs x_init), plus the teacher term when
     `config.teacher_weight` > 0 (which needs `teacher`, (ΣV, 3) [m]) and the lookahead term when
@@ -100,11 +110,17 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
 
     Returns the scalar loss and the batch-mean of each term [J] (detached) for logging, with the
     teacher distance as "teacher_rms" [m] when a teacher is given and the lookahead distance as
-    "lookahead_rms" [m] when a lookahead target is.
+    "lookahead_rms" [m] when a lookahead target is. earlier_passes: the earlier passes' drapes
+    (`DrapeOutput.earlier_passes`), whose energies `config.earlier_passes_weight` adds (logged as
+    "earlier_passes" [J], the mean over them).
     """
     contact = {"contact_stiffness": contact_stiffness, "margin": margin}
     terms = drape_energies(x, cloth, bodies, body_index, **contact)
     total = sum(terms.values())
+    if config.earlier_passes_weight > 0 and earlier_passes:
+        earlier = torch.stack([sum(drape_energies(xk, cloth, bodies, body_index, **contact).values())
+                               for xk in earlier_passes])
+        total = total + config.earlier_passes_weight * earlier.sum(0)
     if config.per_garment_scale == "initial":
         if x_init is None:
             raise ValueError("per_garment_scale='initial' needs x_init")
@@ -114,6 +130,8 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
             scale = start["strain"] + start["bend"] + start["collision"] + 0.01 * weight
         total = total / scale
     logged = {name: value.detach().mean() for name, value in terms.items()}
+    if config.earlier_passes_weight > 0 and earlier_passes:
+        logged["earlier_passes"] = earlier.detach().mean()
     if config.teacher_weight > 0 and teacher is None:
         raise ValueError("LossConfig.teacher_weight > 0 needs the teacher drapes of an instance cache: set "
                          "data.instances to a folder (built on first use)")

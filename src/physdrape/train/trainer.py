@@ -219,7 +219,7 @@ class Trainer:
                                          self.config.model)
         loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init,
                                  contact_stiffness=self.config.model.contact_stiffness, margin=self.config.model.margin,
-                                 teacher=sample.teacher, lookahead=lookahead)
+                                 teacher=sample.teacher, lookahead=lookahead, earlier_passes=out.earlier_passes)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)
