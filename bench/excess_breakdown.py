@@ -23,19 +23,16 @@ torch thread. Writes <out>.md and <out>.json with the command and the commit.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
+from eval_record import test_instances
 from report import page_head, write_report
 
 from physdrape.checkpoint import load_model
 from physdrape.eval import evaluate as ev
-from physdrape.eval.config import EvalConfig
-from physdrape.eval.instances import split_instances
 from physdrape.model import Variant
 from physdrape.physics.forces import energy_terms
 
@@ -67,25 +64,11 @@ def main() -> None:
     parser.add_argument("--out", default="results/excess_breakdown")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    record = json.loads(Path(args.eval).read_text())
-    test = record["sets"].get("test", {})
-    if not test.get("reference"):
-        raise SystemExit(f"{args.eval} has no test set with references: run `physdrape eval` with the oracle")
-    settings = record["config"]
-    described, references = test["instances"], test["reference"]["per_instance"]
-    count = len(described) if args.instances is None else min(args.instances, len(described))
-    config = EvalConfig(instances=len(described), seed=settings["seed"],
-                        poses_per_garment=settings["poses_per_garment"], split_dir=settings["split_dir"],
-                        max_garments=settings["max_garments"], dtype=settings["dtype"])
+    instances, references, record = test_instances(args.eval, args.instances)
     models = {name: load_model(args.checkpoint, variant=variant)[0] for name, variant in VARIANTS.items()}
     contact = ev.Contact.of(models["model"])
-    from physdrape.body.anny_body import get_anny_body
-
-    instances = split_instances(config, get_anny_body())[:count]
-    if [inst.garment for inst in instances] != [d["garment"] for d in described[:count]]:
-        raise SystemExit(f"the test instances of this checkout are not those of {args.eval}")
     rows = []
-    for inst, ref in zip(instances, references[:count]):
+    for inst, ref in zip(instances, references):
         batch = inst.batch().drape
         row = {"garment": inst.garment, "category": inst.category, "reference": reference_terms(ref), "steps": {}}
         with torch.no_grad():
