@@ -161,7 +161,8 @@ class PhysDrape(nn.Module):
                 earlier.append(x_gnn)
             # a later pass reads its inputs at the garment the passes before it moved (forces,
             # normals, body distances, edges there), held constant in the gradient: it learns to
-            # correct what it sees, and the earlier passes are trained through its move only
+            # correct what it sees, and the earlier passes are trained through its move (and,
+            # with loss.earlier_passes_weight, through their own drapes)
             at = x_gnn if k == 0 else x_gnn.detach()
             nodes, edges, graph = self.graph_inputs(batch, at)
             out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), graph,
