@@ -156,7 +156,9 @@ def load_model(path: str | os.PathLike, *, variant: Variant | None = None,
     network in the dtype it was trained in, switched to `variant` when given, else to the variant
     the checkpoint was exported to run as (config.json's "variant", `export_model`), else the one
     it was trained as; its network run as `passes` passes when given, else as many as it was
-    exported to run (config.json's "passes"), else as many as it was trained with.
+    exported to run (config.json's "passes"), else as many as it was trained with; its solver
+    started from the network's move extrapolated by the gain it was exported with (config.json's
+    "eval_move_gain", `ModelConfig.eval_move_gain`), else as trained.
 
     Returns (model, info {"path", "step", "variant", "passes", "eval_steps", "dtype"}).
     """
@@ -185,6 +187,11 @@ def load_model(path: str | os.PathLike, *, variant: Variant | None = None,
             raise CheckpointError(f"{path / CONFIG_FILE}: passes {passes!r} is not an integer ≥ 1; {_FIX}")
     if passes is not None:
         model_cfg = replace(model_cfg, passes=passes)
+    gain = config.get("eval_move_gain")
+    if gain is not None:
+        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not gain > 0:
+            raise CheckpointError(f"{path / CONFIG_FILE}: eval_move_gain {gain!r} is not a number > 0; {_FIX}")
+        model_cfg = replace(model_cfg, eval_move_gain=float(gain))
     dtype = getattr(torch, str(train.get("dtype", "float32")), None)
     if dtype not in (torch.float32, torch.float64):
         raise CheckpointError(f"{path / CONFIG_FILE}: train.dtype {train.get('dtype')!r} is not float32 or float64")
@@ -210,7 +217,8 @@ def read_train_state(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
 
 
 def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike, *,
-                 variant: Variant | str | None = None, passes: int | None = None) -> Path:
+                 variant: Variant | str | None = None, passes: int | None = None,
+                 eval_move_gain: float | None = None) -> Path:
     """Copy a checkpoint's model (model.safetensors + config.json, no training state) to out_dir,
     atomically: the form in which a trained model is shipped and loaded for inference.
 
@@ -219,9 +227,13 @@ def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike, *,
     config's train section keeps the variant it was trained as. None: as trained.
     passes: the network passes the exported model makes (`load_model`'s default; `ModelConfig.passes`),
     e.g. 2 for a network trained as one pass that is to look again at the garment it moved. None:
-    as trained."""
+    as trained.
+    eval_move_gain: the gain g of the exported model's solver start X_init + g Δx
+    (`ModelConfig.eval_move_gain`). None: as trained."""
     if passes is not None and (not isinstance(passes, int) or passes < 1):
         raise ValueError(f"passes must be an integer ≥ 1, got {passes!r}")
+    if eval_move_gain is not None and not eval_move_gain > 0:
+        raise ValueError(f"eval_move_gain must be > 0, got {eval_move_gain!r}")
     source = resolve(checkpoint)
     _, config = read_checkpoint(source)  # validates that both files are readable
     extra = {"exported_from": source.name}
@@ -229,6 +241,8 @@ def export_model(checkpoint: str | os.PathLike, out_dir: str | os.PathLike, *,
         extra["variant"] = Variant(variant).value
     if passes is not None:
         extra["passes"] = passes
+    if eval_move_gain is not None:
+        extra["eval_move_gain"] = float(eval_move_gain)
     with atomic_directory(out_dir) as tmp:
         shutil.copy2(source / "model.safetensors", tmp / "model.safetensors")
         (tmp / "config.json").write_text(json.dumps({**config, **extra}, indent=2, sort_keys=True))

@@ -87,3 +87,24 @@ def test_training_two_passes_lowers_the_energy(two_tubes):
 def test_passes_must_be_positive():
     with pytest.raises(ValueError, match="passes"):
         ModelConfig(passes=0)
+
+
+def test_in_eval_mode_the_solver_starts_from_the_extrapolated_move(two_tubes):
+    """ModelConfig.eval_move_gain g: with the solver (no steps, no handler: its start is the
+    drape) the start is X_init + g Δx in eval mode and the network's drape in training; the
+    output's x_gnn is the network's drape either way, and GNN only ignores g."""
+    torch.manual_seed(0)
+    config = ModelConfig(**{**MODEL.__dict__, "passes": 1, "variant": Variant.GNN_SOLVER, "eval_move_gain": 1.5})
+    model = PhysDrape(config).eval()
+    batch = make_input(two_tubes, [0.15, 0.13])
+    out = model(batch, steps=0)
+    move = out.x_gnn - batch.x_init
+    assert float(move.abs().max()) > 1e-6  # the network moves the garment: the check can fail
+    torch.testing.assert_close(out.x, batch.x_init + 1.5 * move)
+    gnn = PhysDrape(ModelConfig(**{**config.__dict__, "variant": Variant.GNN_ONLY})).eval()
+    gnn.load_state_dict(model.state_dict())
+    torch.testing.assert_close(gnn(batch).x, out.x_gnn)
+    trained = model.train()(batch, steps=0)  # (training also moves the normalisers' statistics)
+    torch.testing.assert_close(trained.x, trained.x_gnn)
+    with pytest.raises(ValueError, match="eval_move_gain"):
+        ModelConfig(eval_move_gain=0.0)

@@ -92,6 +92,8 @@ def test_an_interrupted_stage_resumes(recipe, tmp_path):
     ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, variant: gnn_only}", "ship.variant"),
     ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, passes: 0}", "ship.passes"),
     ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, passes: two}", "ship.passes"),
+    ("stages: [{name: a, config: c.yaml}]\nship: {model_out: m, record_out: r, eval_move_gain: 0}",
+     "ship.eval_move_gain"),
     ("steps: 3", "a list `stages`"),
 ])
 def test_a_bad_recipe_is_named(tmp_path, text, pattern):
@@ -164,4 +166,21 @@ def test_a_network_trained_as_one_pass_ships_to_make_two(tmp_path):
     config["passes"] = 0
     (tmp_path / "model" / "config.json").write_text(json.dumps(config))
     with pytest.raises(ckpt.CheckpointError, match="passes 0"):
+        ckpt.load_model(tmp_path / "model")
+
+
+def test_a_network_ships_with_its_solver_start_gain(tmp_path):
+    """ship.eval_move_gain: the exported model's solver starts from X_init + g Δx, the run itself
+    keeps g = 1; a bad gain in config.json is named."""
+    one = _config(tmp_path / "a.yaml", solver="two_level", steps=2, seed=1)
+    path = tmp_path / "recipe.yaml"
+    ship = {"model_out": str(tmp_path / "model"), "record_out": str(tmp_path / "record"), "eval_move_gain": 1.3}
+    path.write_text(yaml.safe_dump({"stages": [{"name": "one", "config": str(one)}], "ship": ship}))
+    run_recipe(path, tmp_path / "run", source=source, command="c", log=lambda _: None)
+    assert ckpt.load_model(tmp_path / "model")[0].config.eval_move_gain == 1.3
+    assert ckpt.load_model(tmp_path / "run" / "one")[0].config.eval_move_gain == 1.0
+    _, config = ckpt.read_checkpoint(tmp_path / "model")
+    config["eval_move_gain"] = -1
+    (tmp_path / "model" / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ckpt.CheckpointError, match="eval_move_gain -1"):
         ckpt.load_model(tmp_path / "model")

@@ -104,6 +104,11 @@ class ModelConfig:
     settling as a whole on smooth patches), six more node features. Message passing alone sees
     the forces, which the stiff local strain dominates; the coarse move says where the garment
     as a whole is pulled. Needs the two_level solver.
+    eval_move_gain: in eval mode, the solver starts from X_init + g Δx instead of the network's
+    drape X_init + Δx (g = 1: the network's drape; the GNN-only drape is X_init + Δx whatever g).
+    A network trained on its own drape's energy stops short of the garment-wide move, which the
+    solver relaxes slowest, while the strain that a longer move adds is what the solver's first
+    steps relax fastest; g is chosen on the held-out validation set (docs/solver.md).
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -141,6 +146,7 @@ class ModelConfig:
     force_scale: float = 1.0
     max_move: float = 0.03
     passes: int = 1
+    eval_move_gain: float = 1.0
     step_inputs: bool = False
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
@@ -174,6 +180,9 @@ class ModelConfig:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.passes < 1:
             raise ValueError(f"ModelConfig.passes must be ≥ 1 (network passes), got {self.passes}")
+        if not self.eval_move_gain > 0:
+            raise ValueError(f"ModelConfig.eval_move_gain must be > 0 (1: the solver starts from the network's "
+                             f"drape), got {self.eval_move_gain}")
         if self.levels < 0:
             raise ValueError(f"ModelConfig.levels must be ≥ 0, got {self.levels}")
 

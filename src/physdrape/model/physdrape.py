@@ -151,7 +151,9 @@ class PhysDrape(nn.Module):
 
         The network's move X_init + Δx keeps a multi-piece garment's layer order
         (`physics.layers.push_outer_out`): the network sees each piece alone (no graph edge joins
-        two pieces), so its move can drive an outer piece into the one under it."""
+        two pieces), so its move can drive an outer piece into the one under it. In eval mode the
+        solver starts from X_init + g Δx, g = `ModelConfig.eval_move_gain` (the output's x_gnn is
+        the network's drape X_init + Δx whatever g)."""
         cfg = self.config
         # forces in units of each vertex's weight: the support a vertex needs is of that order
         weight = batch.cloth.mass * batch.cloth.gravity[batch.cloth.vert_garment].norm(dim=-1)
@@ -174,15 +176,22 @@ class PhysDrape(nn.Module):
             else:
                 delta_x = cfg.displacement_scale * out[:, :3]
             x_gnn = x_gnn + delta_x
+        f_hat = out[:, 3:] * weight[:, None]  # the last pass's
+        start = x_gnn
+        if cfg.variant.uses_solver and not self.training and cfg.eval_move_gain != 1.0:
+            # the solver starts from the network's move extrapolated (ModelConfig.eval_move_gain)
+            start = batch.x_init + cfg.eval_move_gain * (x_gnn - batch.x_init)
         layers = batch.cloth.layers
         if layers is not None and len(layers.pairs):
             # the network sees each piece alone: where its move drove an outer piece into the one
             # under it, the outer vertex goes back out, so the move adds nothing to a pair's
             # layer-order shortfall over X_init's (as the collision handler's layer pass)
-            x_gnn = push_outer_out(x_gnn, layers, allowed=layer_shortfall(batch.x_init, layers))
-        f_hat = out[:, 3:] * weight[:, None]  # the last pass's
-        out = self._physics(batch, x_gnn, f_hat, steps=steps, keep_trace=keep_trace)
-        return replace(out, earlier_passes=tuple(earlier)) if earlier else out
+            allowed = layer_shortfall(batch.x_init, layers)
+            extrapolated = start is not x_gnn
+            x_gnn = push_outer_out(x_gnn, layers, allowed=allowed)
+            start = push_outer_out(start, layers, allowed=allowed) if extrapolated else x_gnn
+        out = self._physics(batch, start, f_hat, steps=steps, keep_trace=keep_trace)
+        return replace(out, x_gnn=x_gnn, earlier_passes=tuple(earlier))
 
     def physics_only(self, batch: DrapeInput, *, steps: int | None = None, keep_trace: bool = False) -> DrapeOutput:
         """The model's solver steps (Δx = 0, f̂ = 0) and collision handler from X_init, without the

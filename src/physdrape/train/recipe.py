@@ -10,6 +10,7 @@ A recipe is a YAML file::
       record_out: docs/training/shipped
       variant: full              # optional: the variant the shipped model runs as (default: as trained)
       passes: 2                  # optional: the network passes it makes (default: as trained)
+      eval_move_gain: 1.3        # optional: its solver's start X_init + g Δx (default: as trained)
 
 `physdrape train --recipe FILE --run-dir DIR [--resume]` trains stage k into DIR/<name>, with
 ``optim.init_from`` set to DIR/<previous name> (whatever the stage's config says), skips stages
@@ -21,7 +22,8 @@ resumed segments, as its metrics.jsonl logged them). With ``ship``, the last sta
 every stage's training record written into record_out/<stage name> (`physdrape.train.ship`), with
 the recipe's record beside them; ``variant`` ships it to run as that variant (`export_model`): a
 network trained alone (GNN-only) shipped to drape through the solver and the handler; ``passes``
-ships its network to make that many passes (`ModelConfig.passes`).
+ships its network to make that many passes (`ModelConfig.passes`), ``eval_move_gain`` its solver
+to start from the network's move extrapolated by that gain (`ModelConfig.eval_move_gain`).
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ class Recipe:
     record_out: Path | None = None
     variant: str | None = None
     passes: int | None = None
+    eval_move_gain: float | None = None
 
 
 def load_recipe(path: str | Path) -> Recipe:
@@ -81,17 +84,22 @@ def load_recipe(path: str | Path) -> Recipe:
     if not stages or len({s.name for s in stages}) != len(stages):
         raise ConfigError(f"{path}: give at least one stage, with distinct names")
     ship = data.get("ship") or {}
-    allowed = {"model_out", "record_out", "variant", "passes"}
+    allowed = {"model_out", "record_out", "variant", "passes", "eval_move_gain"}
     if set(ship) - allowed or (ship and not {"model_out", "record_out"} <= set(ship)):
-        raise ConfigError(f"{path}: `ship` takes model_out and record_out, and optionally variant and passes")
+        raise ConfigError(f"{path}: `ship` takes model_out and record_out, and optionally variant, passes and "
+                          f"eval_move_gain")
     variant = ship.get("variant")
     if variant is not None and variant not in [v.value for v in Variant]:
         raise ConfigError(f"{path}: ship.variant must be one of {[v.value for v in Variant]}, got {variant!r}")
     passes = ship.get("passes")
     if passes is not None and (not isinstance(passes, int) or isinstance(passes, bool) or passes < 1):
         raise ConfigError(f"{path}: ship.passes must be an integer ≥ 1, got {passes!r}")
+    gain = ship.get("eval_move_gain")
+    if gain is not None and (isinstance(gain, bool) or not isinstance(gain, (int, float)) or not gain > 0):
+        raise ConfigError(f"{path}: ship.eval_move_gain must be a number > 0, got {gain!r}")
     return Recipe(tuple(stages), Path(ship["model_out"]) if ship else None,
-                  Path(ship["record_out"]) if ship else None, variant, passes)
+                  Path(ship["record_out"]) if ship else None, variant, passes,
+                  None if gain is None else float(gain))
 
 
 def stage_configs(recipe: Recipe, run_dir: Path) -> list[TrainConfig]:
@@ -162,7 +170,7 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
         from physdrape.train.ship import write_record
 
         export_model(latest_checkpoint(run_dir / recipe.stages[-1].name), recipe.model_out, variant=recipe.variant,
-                     passes=recipe.passes)
+                     passes=recipe.passes, eval_move_gain=recipe.eval_move_gain)
         for stage in recipe.stages:
             write_record(run_dir / stage.name, recipe.record_out / stage.name, command=command)
         write_text(recipe.record_out / "recipe.json", json.dumps(record, indent=2) + "\n")
