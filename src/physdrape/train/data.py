@@ -35,10 +35,12 @@ from physdrape.train.materials import draw_material
 @dataclass(frozen=True)
 class TrainingBatch:
     """A batch of training samples: the model's input and, from an instance cache, the physics
-    teacher's drape of every vertex [m] (ΣV, 3) (None without a cache)."""
+    teacher's drape of every vertex [m] (ΣV, 3) and each garment's instance index in the cache's
+    training part (None without a cache)."""
 
     drape: DrapeInput
     teacher: torch.Tensor | None = None
+    instances: tuple[int, ...] | None = None
 
 
 def default_split_dir(seed: int = 0) -> Path:
@@ -145,7 +147,7 @@ class DrapeSource:
             jobs = [Job(self.templates[self._train[i].garment], self._train[i].body,
                         Material(**self._train[i].material), self._tensors[i][0]) for i in picks]
             drape = self.pipeline.build(jobs, self.posed_pool())
-            return TrainingBatch(drape, torch.cat([self._tensors[i][1] for i in picks]).to(self.dtype))
+            return TrainingBatch(drape, torch.cat([self._tensors[i][1] for i in picks]).to(self.dtype), tuple(picks))
         jobs = []
         for seed in seeds:
             rng = np.random.default_rng(seed)

@@ -53,6 +53,13 @@ class LossConfig:
     earlier_passes`). Trained through the last pass's move only, the first pass stops draping on
     its own and leaves the work to the later ones; with the term every pass learns to drape, the
     later ones from where the earlier left the garment. 0 = the loss at the last drape only.
+
+    distill_weight [J/m²] and distill_passes: adds, per garment, distill_weight × the
+    mass-weighted mean squared distance [m²] of the drape to the drape that the network the run
+    starts from (`OptimConfig.init_from`, frozen) makes as distill_passes passes without the
+    solver (`physdrape.train.distill`): one pass learns what the same weights reach in several.
+    0 = off. distill_levels: as teacher_levels, for this term (L > 0: only the smooth part of the
+    difference, the garment-wide move, is pulled; the energy alone shapes the local one).
     """
 
     per_garment_scale: str = "none"
@@ -61,6 +68,9 @@ class LossConfig:
     lookahead_weight: float = 0.0
     lookahead_steps: int = 3
     earlier_passes_weight: float = 0.0
+    distill_weight: float = 0.0
+    distill_passes: int = 2
+    distill_levels: int = 0
 
     def __post_init__(self) -> None:
         if self.per_garment_scale not in ("none", "initial"):
@@ -75,6 +85,12 @@ class LossConfig:
                              f"{self.lookahead_weight!r} and {self.lookahead_steps!r}")
         if not self.earlier_passes_weight >= 0:
             raise ValueError(f"LossConfig.earlier_passes_weight must be ≥ 0, got {self.earlier_passes_weight!r}")
+        if not self.distill_weight >= 0 or not isinstance(self.distill_passes, int) or self.distill_passes < 2:
+            raise ValueError(f"LossConfig needs distill_weight ≥ 0 [J/m²] and an integer distill_passes ≥ 2 (the "
+                             f"teacher's passes), got {self.distill_weight!r} and {self.distill_passes!r}")
+        if not isinstance(self.distill_levels, int) or self.distill_levels < 0:
+            raise ValueError(f"LossConfig.distill_levels must be an integer ≥ 0 (as teacher_levels), got "
+                             f"{self.distill_levels!r}")
 
 
 def teacher_distance(x: Tensor, teacher: Tensor, cloth: Cloth, levels: int = 0) -> Tensor:
@@ -100,7 +116,8 @@ def lookahead_target(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: T
 def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor, config: LossConfig,
                x_init: Tensor | None = None, *, contact_stiffness: float, margin: float,
                teacher: Tensor | None = None, lookahead: Tensor | None = None,
-               earlier_passes: tuple[Tensor, ...] = ()) -> tuple[Tensor, dict[str, Tensor]]:
+               earlier_passes: tuple[Tensor, ...] = (),
+               distill: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
     """The training loss: the sum of the terms per garment (divided by the garment's scale when
     `config.per_garment_scale` is "initial", which needs x_init), plus the teacher term when
     `config.teacher_weight` > 0 (which needs `teacher`, (ΣV, 3) [m]) and the lookahead term when
@@ -112,7 +129,9 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
     teacher distance as "teacher_rms" [m] when a teacher is given and the lookahead distance as
     "lookahead_rms" [m] when a lookahead target is. earlier_passes: the earlier passes' drapes
     (`DrapeOutput.earlier_passes`), whose energies `config.earlier_passes_weight` adds (logged as
-    "earlier_passes" [J], the mean over them).
+    "earlier_passes" [J], the mean over them). distill: the teacher network's drape (ΣV, 3) [m]
+    (`physdrape.train.distill.PassesTeacher`), needed when `config.distill_weight` > 0 (its
+    distance logged as "distill_rms" [m]).
     """
     contact = {"contact_stiffness": contact_stiffness, "margin": margin}
     terms = drape_energies(x, cloth, bodies, body_index, **contact)
@@ -146,4 +165,10 @@ def drape_loss(x: Tensor, cloth: Cloth, bodies: BodySurface, body_index: Tensor,
         distance = teacher_distance(x, lookahead, cloth)
         logged["lookahead_rms"] = distance.detach().mean().sqrt()
         total = total + config.lookahead_weight * distance
+    if config.distill_weight > 0 and distill is None:
+        raise ValueError("LossConfig.distill_weight > 0 needs the teacher network's drape (`train.distill`)")
+    if distill is not None:
+        distance = teacher_distance(x, distill, cloth, config.distill_levels)
+        logged["distill_rms"] = distance.detach().mean().sqrt()
+        total = total + config.distill_weight * distance
     return total.mean(), logged

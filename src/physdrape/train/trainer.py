@@ -129,6 +129,14 @@ class Trainer:
                 self.model, device_ids=[self.device.index] if self.device.type == "cuda" else None,
                 find_unused_parameters=config.model.variant.value != "full"
             )
+        self.distill = None
+        if config.loss.distill_weight > 0:
+            if not config.optim.init_from:
+                raise ValueError("loss.distill_weight > 0 distills the network the run starts from: set "
+                                 "optim.init_from to that checkpoint or run directory")
+            from physdrape.train.distill import PassesTeacher
+
+            self.distill = PassesTeacher(config.optim.init_from, config.loss.distill_passes, self.device)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.optim.lr)
         decay = math.log(config.optim.lr_final_ratio) / config.optim.steps
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: math.exp(decay * s))
@@ -212,6 +220,7 @@ class Trainer:
         model.train()
         sample = self._local_batch()
         batch = sample.drape
+        distill = None if self.distill is None else self.distill.drapes(sample)
         out = model(batch)
         lookahead = None
         if self.config.loss.lookahead_weight > 0:
@@ -219,7 +228,8 @@ class Trainer:
                                          self.config.model)
         loss, terms = drape_loss(out.x, batch.cloth, batch.bodies, batch.body_index, self.config.loss, batch.x_init,
                                  contact_stiffness=self.config.model.contact_stiffness, margin=self.config.model.margin,
-                                 teacher=sample.teacher, lookahead=lookahead, earlier_passes=out.earlier_passes)
+                                 teacher=sample.teacher, lookahead=lookahead, earlier_passes=out.earlier_passes,
+                                 distill=distill)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.optim.grad_clip)
