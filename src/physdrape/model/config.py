@@ -109,6 +109,15 @@ class ModelConfig:
     A network trained on its own drape's energy stops short of the garment-wide move, which the
     solver relaxes slowest, while the strain that a longer move adds is what the solver's first
     steps relax fastest; g is chosen on the held-out validation set (docs/solver.md).
+    look_back_blocks: an odd number of processor blocks of a look-back stage after the network's
+    blocks (0: none; `EncodeProcessDecode.forward_looking_back`): the network decodes its move
+    Δx₁, reads the two-level solver's first step parts at X_init + Δx₁ (on the body planes of its
+    input's query, held), encodes them into its latents and adds the move Δx₂ that these blocks
+    (a V-cycle over (look_back_blocks − 1) / 2 of the coarse levels, at most `levels`) and a decoder of their own make.
+    A second pass's physics at a fraction of a pass's cost: no body query, no graph inputs
+    anew, a short V-cycle. The drape X_init + Δx₁ counts as an earlier pass's
+    (`DrapeOutput.earlier_passes`, `LossConfig.earlier_passes_weight`). Needs step_inputs and
+    the direct displacement.
     normalizer_accumulations: batches of the statistics warm-up after which normalisers freeze.
     variant: which modules run (see `Variant`).
     """
@@ -148,6 +157,7 @@ class ModelConfig:
     passes: int = 1
     eval_move_gain: float = 1.0
     step_inputs: bool = False
+    look_back_blocks: int = 0
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
 
@@ -185,6 +195,12 @@ class ModelConfig:
                              f"drape), got {self.eval_move_gain}")
         if self.levels < 0:
             raise ValueError(f"ModelConfig.levels must be ≥ 0, got {self.levels}")
+        if self.look_back_blocks < 0 or (self.look_back_blocks and self.look_back_blocks % 2 == 0):
+            raise ValueError(f"ModelConfig.look_back_blocks must be 0 (no look-back) or odd (a V-cycle that ends on "
+                             f"the mesh), got {self.look_back_blocks}")
+        if self.look_back_blocks and (not self.step_inputs or self.displacement is not Displacement.DIRECT):
+            raise ValueError("ModelConfig.look_back_blocks reads the solver's step parts where the network's direct "
+                             "move leaves the garment: set step_inputs: true and displacement: direct")
 
     @staticmethod
     def paper() -> "ModelConfig":

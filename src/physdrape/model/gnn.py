@@ -13,6 +13,7 @@ level l − 1.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 
 import torch
 from torch import Tensor, nn
@@ -82,19 +83,24 @@ def level_schedule(blocks: int, levels: int) -> list[int]:
 
 
 class EncodeProcessDecode(nn.Module):
-    """Encoders to a latent of width D, L processor blocks, a decoder without LayerNorm.
+    """Encoders to a latent of width D, L processor blocks, a decoder without LayerNorm; optionally
+    a look-back stage (`forward_looking_back`).
 
     Args:
         node_in, edge_in: raw (normalised) feature widths; out: decoder output width.
         latent: D; blocks: L; mlp_layers: Linear layers per MLP (the paper: 2).
         levels: coarse graph levels the blocks walk (`level_schedule`); 0: the mesh graph only.
         zero_init_output: start the decoder's last layer at zero (an untrained network outputs 0).
+        look_back_in, look_back_blocks: the look-back stage's feature width and its blocks (an
+            odd number, a V-cycle over (look_back_blocks − 1) / 2 levels at most `levels`; 0:
+            no stage). Its decoder starts at zero: the stage adds nothing until trained.
     Forward: nodes (N, node_in), edges (E', edge_in) of all levels in `graph.edge_index`'s order,
     graph (`GraphLevels` with at least `levels` coarse levels) → (N, out).
     """
 
     def __init__(self, node_in: int, edge_in: int, out: int, *, latent: int, blocks: int, mlp_layers: int = 2,
-                 levels: int = 0, zero_init_output: bool = False) -> None:
+                 levels: int = 0, zero_init_output: bool = False, look_back_in: int = 0,
+                 look_back_blocks: int = 0) -> None:
         super().__init__()
         self.schedule = level_schedule(blocks, levels)
         self.node_encoder = mlp(node_in, latent, latent, layers=mlp_layers)
@@ -104,26 +110,78 @@ class EncodeProcessDecode(nn.Module):
         if zero_init_output:  # the untrained network outputs 0: training starts from its input state
             nn.init.zeros_(self.decoder[-1].weight)
             nn.init.zeros_(self.decoder[-1].bias)
+        self.look_back_schedule = (level_schedule(look_back_blocks, min(levels, (look_back_blocks - 1) // 2))
+                                   if look_back_blocks else [])
+        if look_back_blocks:
+            self.look_back_encoder = mlp(look_back_in, latent, latent, layers=mlp_layers)
+            self.look_back_blocks = nn.ModuleList(ProcessorBlock(latent, mlp_layers=mlp_layers)
+                                                  for _ in range(look_back_blocks))
+            self.look_back_decoder = mlp(latent, latent, out, layers=mlp_layers, layer_norm=False)
+            nn.init.zeros_(self.look_back_decoder[-1].weight)
+            nn.init.zeros_(self.look_back_decoder[-1].bias)
 
     def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None = None) -> Tensor:
         """parts: vertex bounds [0, b₁, …, N] of pieces no edge crosses (whole garments of a
         batch), processed one after the other: the same output, with each piece's latents small
         enough to stay in the CPU's caches (a batch of garments as one graph runs about half as
         fast per garment on one thread). None: the graph in one piece."""
-        if parts is not None and len(parts) > 2:
-            per_level = torch.split(edges, graph.edge_counts)
-            out = []
-            for start, stop in itertools.pairwise(parts):
-                sub, chosen = graph.part(start, stop)
-                out.append(self(nodes[start:stop], torch.cat([e[k] for e, k in zip(per_level, chosen)]), sub))
-            return torch.cat(out)
+        outs = [self.decoder(h) for h, _, _ in self._processed(nodes, edges, graph, parts)]
+        return outs[0] if len(outs) == 1 else torch.cat(outs)
+
+    def forward_looking_back(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,
+                             look_back: Callable[[Tensor], Tensor],
+                             parts: list[int] | None = None) -> tuple[Tensor, Tensor]:
+        """The network's output before and after its look-back stage, each (N, out): the blocks'
+        output y₁ as `forward` makes it; then `look_back`(y₁) → (N, look_back_in) features read
+        where y₁ moves the garment (the caller's physics, normalised), encoded and added to the
+        latents, the look-back blocks on the mesh and coarse edges' latents as the blocks left
+        them, and y₁ + the look-back decoder's output. parts: as `forward` (the look-back reads
+        the whole batch at once, between the two stages)."""
+        if not len(self.look_back_schedule):
+            raise ValueError("this network has no look-back stage (ModelConfig.look_back_blocks = 0)")
+        pieces = self._processed(nodes, edges, graph, parts)
+        first = [self.decoder(h) for h, _, _ in pieces]
+        features = torch.split(look_back(torch.cat(first)), [len(y) for y in first])
+        second = []
+        for (h, e, sub), extra in zip(pieces, features):
+            h = h + self.look_back_encoder(extra)
+            h, _ = self._blocks(self.look_back_blocks, self.look_back_schedule, h, e, sub)
+            second.append(self.look_back_decoder(h))
+        first_out = torch.cat(first)
+        return first_out, first_out + torch.cat(second)
+
+    def _processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,
+                   parts: list[int] | None) -> list[tuple[Tensor, list[Tensor], GraphLevels]]:
+        """Per piece (`forward`'s parts), its node latents, its edge latents per level and its
+        graph after the encoders and the processor blocks."""
+        if parts is None or len(parts) <= 2:
+            return [self._encoded_and_processed(nodes, edges, graph)]
+        per_level = torch.split(edges, graph.edge_counts)
+        out = []
+        for start, stop in itertools.pairwise(parts):
+            sub, chosen = graph.part(start, stop)
+            piece_edges = torch.cat([e[k] for e, k in zip(per_level, chosen)])
+            out.append(self._encoded_and_processed(nodes[start:stop], piece_edges, sub))
+        return out
+
+    def _encoded_and_processed(self, nodes: Tensor, edges: Tensor,
+                               graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
         h = self.node_encoder(nodes)
         e = list(torch.split(self.edge_encoder(edges), graph.edge_counts))
-        for block, level in zip(self.blocks, self.schedule):
+        h, e = self._blocks(self.blocks, self.schedule, h, e, graph)
+        return h, e, graph
+
+    @staticmethod
+    def _blocks(blocks: nn.ModuleList, schedule: list[int], h: Tensor, e: list[Tensor],
+                graph: GraphLevels) -> tuple[Tensor, list[Tensor]]:
+        """Run `blocks` at the levels of `schedule`: a block of level l passes messages among the
+        level's nodes along its edges and leaves the other nodes' latents as they are."""
+        e = list(e)
+        for block, level in zip(blocks, schedule):
             if level == 0:
                 h, e[0] = block(h, e[0], graph.local_edge_index[0])
             else:
                 ids = graph.nodes[level]
                 sub, e[level] = block(h[ids], e[level], graph.local_edge_index[level])
                 h = h.index_copy(0, ids, sub)
-        return self.decoder(h)
+        return h, e

@@ -44,6 +44,12 @@ class Normalizer(nn.Module):
         variance = self.sum_squares / self.count.clamp_min(1.0) - self.mean() ** 2
         return variance.clamp_min(0.0).sqrt().clamp_min(self.std_epsilon)
 
+    def normalize_columns(self, features: Tensor, columns: slice) -> Tensor:
+        """Features (..., C') normalised with the statistics of `columns` (C' of them), without
+        adding to the statistics: quantities of the same kind as those columns found elsewhere."""
+        mean, std = self.mean()[columns].to(features.dtype), self.std()[columns].to(features.dtype)
+        return (features - mean) / std
+
     def forward(self, features: Tensor) -> Tensor:
         if self.training and int(self.accumulations) < self.max_accumulations:
             self.accumulate(features)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import torch
@@ -10,7 +11,7 @@ from torch import Tensor, nn
 
 from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.garment import GarmentBatch, GraphLevels
-from physdrape.geometry.proximity import BodySurface
+from physdrape.geometry.proximity import BodySurface, SurfaceQuery
 from physdrape.model.collision_handler import CollisionHandler
 from physdrape.model.config import Displacement, ModelConfig, Variant
 from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, STEP_FEATURES, edge_features, node_features
@@ -94,6 +95,7 @@ class PhysDrape(nn.Module):
         self.gnn = EncodeProcessDecode(
             node_in, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
             levels=config.levels, zero_init_output=config.zero_init_output,
+            look_back_in=STEP_FEATURES, look_back_blocks=config.look_back_blocks,
         )
         self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
                                        margin=config.margin, contact_stiffness=config.contact_stiffness,
@@ -120,6 +122,12 @@ class PhysDrape(nn.Module):
         """Raw (un-normalised) node and edge features at x (default X_init), in the network's
         dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels);
         with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x."""
+        return self._graph_inputs(batch, x)[:3]
+
+    def _graph_inputs(self, batch: DrapeInput,
+                      x: Tensor | None = None) -> tuple[Tensor, Tensor, GraphLevels, SurfaceQuery | None]:
+        """`graph_inputs` and, with `config.step_inputs`, the body query of x's contact samples
+        that its step parts were found on (else None)."""
         x = batch.x_init if x is None else x
         net_dtype = self.gnn.decoder[0].weight.dtype
         if self.config.step_inputs:  # one body query serves the vertices' distances and the step's contact
@@ -133,11 +141,27 @@ class PhysDrape(nn.Module):
         else:
             query = batch.bodies.query(x, body_index=batch.body_index)
             nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)
+            query = None
         nodes = nodes.to(net_dtype)
         levels = self.config.levels
         graph = batch.garments.graph_levels(levels)
         edges = edge_features(x, batch.garments, graph.edge_index, graph.level, levels)
-        return nodes, edges.to(net_dtype), graph
+        return nodes, edges.to(net_dtype), graph, query
+
+    def _look_back(self, batch: DrapeInput, at: Tensor, query: SurfaceQuery) -> Callable[[Tensor], Tensor]:
+        """The look-back stage's reader (`EncodeProcessDecode.forward_looking_back`): the network's
+        output y₁ → the two-level solver's first step parts (local, coarse) at at + Δx₁ on the body
+        planes of `query` (x's, held: the network moves the garment millimetres to a few
+        centimetres), normalised with the node normaliser's statistics of the step inputs (the same
+        quantities, where the network's input found them), (ΣV, 6); not differentiated."""
+        def read(first: Tensor) -> Tensor:
+            with torch.no_grad():
+                moved = at.detach() + self.config.displacement_scale * first[:, :3].detach().to(at.dtype)
+                local, coarse = self.solver.step_parts(moved, batch.cloth, bodies=batch.bodies,
+                                                       body_index=batch.body_index, query=query)
+                parts = torch.cat([local, coarse], dim=-1).to(first.dtype)
+                return self.node_normalizer.normalize_columns(parts, slice(-STEP_FEATURES, None))
+        return read
 
     @torch.no_grad()
     def accumulate_statistics(self, batch: DrapeInput) -> None:
@@ -166,9 +190,16 @@ class PhysDrape(nn.Module):
             # correct what it sees, and the earlier passes are trained through its move (and,
             # with loss.earlier_passes_weight, through their own drapes)
             at = x_gnn if k == 0 else x_gnn.detach()
-            nodes, edges, graph = self.graph_inputs(batch, at)
-            out = self.gnn(self.node_normalizer(nodes), self.edge_normalizer(edges), graph,
-                           parts=network_parts(batch.garments.vert_offsets.tolist())).to(at.dtype)
+            nodes, edges, graph, query = self._graph_inputs(batch, at)
+            parts = network_parts(batch.garments.vert_offsets.tolist())
+            nodes, edges = self.node_normalizer(nodes), self.edge_normalizer(edges)
+            if cfg.look_back_blocks:
+                first, out = self.gnn.forward_looking_back(nodes, edges, graph, self._look_back(batch, at, query),
+                                                           parts=parts)
+                earlier.append(x_gnn + cfg.displacement_scale * first[:, :3].to(at.dtype))
+                out = out.to(at.dtype)
+            else:
+                out = self.gnn(nodes, edges, graph, parts=parts).to(at.dtype)
             if cfg.displacement is Displacement.PRECONDITIONED:
                 precondition = self.solver.preconditioner(at.detach(), batch.cloth, bodies=batch.bodies,
                                                           body_index=batch.body_index)
