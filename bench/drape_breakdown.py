@@ -48,7 +48,7 @@ PHASES = [
     ("body surface build", "physdrape.pipeline", "PosedBodies", "surface", 1),
     ("doubtful faces", "physdrape.geometry.proximity", "BodySurface", "doubtful_faces", 1),
     ("X_init", "physdrape.pipeline", "DrapePipeline", "_x_inits", 1),
-    ("graph inputs", "physdrape.model.physdrape", "PhysDrape", "graph_inputs", 0),
+    ("graph inputs", "physdrape.model.physdrape", "PhysDrape", "_graph_inputs", 0),
     ("GNN", "physdrape.model.gnn", "EncodeProcessDecode", "forward", 0),
     ("stretching solver", "physdrape.model.stretching_solver", "StretchingSolver", "forward", 0),
     ("body requeries", "physdrape.model.stretching_solver", "_Relaxation", "requery", 1),

@@ -196,13 +196,13 @@ def test_passes_override_the_checkpoints(anny_body, tiny_checkpoint, monkeypatch
     default = Draper(tiny_checkpoint, steps=1, body=anny_body)
     twice = Draper(tiny_checkpoint, steps=1, body=anny_body, passes=2)
     assert default.model_config.passes == 1 and twice.model_config.passes == 2
-    looked_at, original = [], PhysDrape.graph_inputs
+    looked_at, original = [], PhysDrape._graph_inputs  # what each pass of `forward` reads its inputs with
 
     def graph_inputs(self, batch, x=None):
         looked_at.append(batch.x_init if x is None else x)
         return original(self, batch, x)
 
-    monkeypatch.setattr(PhysDrape, "graph_inputs", graph_inputs)
+    monkeypatch.setattr(PhysDrape, "_graph_inputs", graph_inputs)
     [once] = default.drape("default")
     assert len(looked_at) == 1
     looked_at.clear()
