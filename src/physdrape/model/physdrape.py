@@ -56,8 +56,10 @@ class DrapeOutput:
     f_hat: f̂ [N] (ΣV, 3); trace: solver states; bound: the `DistanceBound` of the solver's last
     full body query (vertices, then face centroids; None without one), for later queries of x to
     skip what is far from the body; earlier_passes: with `ModelConfig.passes` > 1, X_init plus
-    the moves of the passes before the last, one (ΣV, 3) per pass (a loss on them trains each
-    pass to drape on its own, `train.loss.LossConfig.earlier_passes_weight`)."""
+    the moves of the passes before the last, one (ΣV, 3) per pass, and with
+    `ModelConfig.look_back_blocks` each pass's drape before its look-back stage, in the order
+    they were made (a loss on them trains each to drape on its own,
+    `train.loss.LossConfig.earlier_passes_weight`)."""
 
     x: Tensor
     x_gnn: Tensor
