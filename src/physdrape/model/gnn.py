@@ -13,7 +13,7 @@ level l − 1.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import torch
 from torch import Tensor, nn
@@ -139,7 +139,7 @@ class EncodeProcessDecode(nn.Module):
         the whole batch at once, between the two stages)."""
         if not len(self.look_back_schedule):
             raise ValueError("this network has no look-back stage (ModelConfig.look_back_blocks = 0)")
-        pieces = self._processed(nodes, edges, graph, parts)
+        pieces = list(self._processed(nodes, edges, graph, parts))
         first = [self.decoder(h) for h, _, _ in pieces]
         features = torch.split(look_back(torch.cat(first)), [len(y) for y in first])
         second = []
@@ -151,18 +151,18 @@ class EncodeProcessDecode(nn.Module):
         return first_out, first_out + torch.cat(second)
 
     def _processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,
-                   parts: list[int] | None) -> list[tuple[Tensor, list[Tensor], GraphLevels]]:
-        """Per piece (`forward`'s parts), its node latents, its edge latents per level and its
-        graph after the encoders and the processor blocks."""
+                   parts: list[int] | None) -> Iterator[tuple[Tensor, list[Tensor], GraphLevels]]:
+        """Per piece (`forward`'s parts), one after the other, its node latents, its edge latents
+        per level and its graph after the encoders and the processor blocks (a generator: a
+        caller that decodes each piece as it comes holds one piece's latents at a time)."""
         if parts is None or len(parts) <= 2:
-            return [self._encoded_and_processed(nodes, edges, graph)]
+            yield self._encoded_and_processed(nodes, edges, graph)
+            return
         per_level = torch.split(edges, graph.edge_counts)
-        out = []
         for start, stop in itertools.pairwise(parts):
             sub, chosen = graph.part(start, stop)
             piece_edges = torch.cat([e[k] for e, k in zip(per_level, chosen)])
-            out.append(self._encoded_and_processed(nodes[start:stop], piece_edges, sub))
-        return out
+            yield self._encoded_and_processed(nodes[start:stop], piece_edges, sub)
 
     def _encoded_and_processed(self, nodes: Tensor, edges: Tensor,
                                graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
