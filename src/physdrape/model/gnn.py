@@ -137,7 +137,7 @@ class EncodeProcessDecode(nn.Module):
         latents, the look-back blocks on the mesh and coarse edges' latents as the blocks left
         them, and y₁ + the look-back decoder's output. parts: as `forward` (the look-back reads
         the whole batch at once, between the two stages)."""
-        if not len(self.look_back_schedule):
+        if not self.look_back_schedule:
             raise ValueError("this network has no look-back stage (ModelConfig.look_back_blocks = 0)")
         pieces = list(self._processed(nodes, edges, graph, parts))
         first = [self.decoder(h) for h, _, _ in pieces]
