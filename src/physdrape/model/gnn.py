@@ -141,13 +141,13 @@ class EncodeProcessDecode(nn.Module):
             raise ValueError("this network has no look-back stage (ModelConfig.look_back_blocks = 0)")
         pieces = list(self._processed(nodes, edges, graph, parts))
         first = [self.decoder(h) for h, _, _ in pieces]
-        features = torch.split(look_back(torch.cat(first)), [len(y) for y in first])
+        first_out = torch.cat(first)
+        features = torch.split(look_back(first_out), [len(y) for y in first])
         second = []
         for (h, e, sub), extra in zip(pieces, features):
             h = h + self.look_back_encoder(extra)
             h, _ = self._blocks(self.look_back_blocks, self.look_back_schedule, h, e, sub)
             second.append(self.look_back_decoder(h))
-        first_out = torch.cat(first)
         return first_out, first_out + torch.cat(second)
 
     def _processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,

@@ -53,5 +53,4 @@ class Normalizer(nn.Module):
     def forward(self, features: Tensor) -> Tensor:
         if self.training and int(self.accumulations) < self.max_accumulations:
             self.accumulate(features)
-        mean, std = self.mean().to(features.dtype), self.std().to(features.dtype)
-        return (features - mean) / std
+        return self.normalize_columns(features, slice(None))

@@ -158,7 +158,7 @@ class PhysDrape(nn.Module):
         quantities, where the network's input found them), (ΣV, 6); not differentiated."""
         def read(first: Tensor) -> Tensor:
             with torch.no_grad():
-                moved = at.detach() + self.config.displacement_scale * first[:, :3].detach().to(at.dtype)
+                moved = at + self.config.displacement_scale * first[:, :3].to(at.dtype)
                 local, coarse = self.solver.step_parts(moved, batch.cloth, bodies=batch.bodies,
                                                        body_index=batch.body_index, query=query)
                 parts = torch.cat([local, coarse], dim=-1).to(first.dtype)
@@ -199,9 +199,9 @@ class PhysDrape(nn.Module):
                 first, out = self.gnn.forward_looking_back(nodes, edges, graph, self._look_back(batch, at, query),
                                                            parts=parts)
                 earlier.append(x_gnn + cfg.displacement_scale * first[:, :3].to(at.dtype))
-                out = out.to(at.dtype)
             else:
-                out = self.gnn(nodes, edges, graph, parts=parts).to(at.dtype)
+                out = self.gnn(nodes, edges, graph, parts=parts)
+            out = out.to(at.dtype)
             if cfg.displacement is Displacement.PRECONDITIONED:
                 precondition = self.solver.preconditioner(at.detach(), batch.cloth, bodies=batch.bodies,
                                                           body_index=batch.body_index)
