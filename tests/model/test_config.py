@@ -39,3 +39,13 @@ def test_solver_schedule_fields_are_checked():
         with pytest.raises(ValueError, match="follow_min_move"):
             ModelConfig(follow_min_move=bad)
     assert ModelConfig(f_hat_steps=None).f_hat_steps is None and ModelConfig().f_hat_steps == ModelConfig().train_steps
+
+
+def test_contact_band_reaches_the_solver_and_is_checked():
+    """contact_band [m] > 0 is the two-level solver's contact band (its preconditioner's and its followed planes')."""
+    from physdrape.model.physdrape import PhysDrape
+
+    assert PhysDrape(ModelConfig(latent=8, blocks=2, contact_band=0.005)).solver.contact_band == 0.005
+    for bad in (0.0, -1e-3, float("nan")):
+        with pytest.raises(ValueError, match="contact_band"):
+            ModelConfig(contact_band=bad)

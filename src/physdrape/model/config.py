@@ -76,6 +76,10 @@ class ModelConfig:
     the physics' equilibrium and not at F = −f̂ (the shipped model's 3 = its train_steps: T = 3
     is unchanged, T = 15 ends lower, `results/eval_drift_f_hat_steps.md`).
     coarse_levels / coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
+    contact_band: the two-level solver's contact band [m]: body samples closer to their plane
+    than this get the penalty's stiffness at depth ε in its preconditioner (a quadratic model
+    then sees the body before the garment enters the margin), and their planes are the ones
+    followed between body searches (`StretchingSolver`); the step inputs are read with it too.
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
     (stability guard, see `StretchingSolver`; 2 cm lowers E_total at every T against 1 cm,
@@ -146,6 +150,7 @@ class ModelConfig:
     eval_inner_iterations: int = 3
     coarse_levels: int = 2
     coarse_smoothing: int = 2
+    contact_band: float = 0.01
     delta: float = 1.05
     margin: float = DEFAULT_MARGIN
     contact_stiffness: float = DEFAULT_STIFFNESS
@@ -186,6 +191,9 @@ class ModelConfig:
         if not self.follow_min_move >= 0:
             raise ValueError(f"ModelConfig.follow_min_move must be ≥ 0 [m] (0: every followed sample at every step), "
                              f"got {self.follow_min_move}")
+        if not self.contact_band > 0:
+            raise ValueError(f"ModelConfig.contact_band must be > 0 [m] (the solver's contact preconditioning "
+                             f"band), got {self.contact_band}")
         if self.eval_requery_every < 1:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.passes < 1:
