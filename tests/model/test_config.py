@@ -49,3 +49,13 @@ def test_contact_band_reaches_the_solver_and_is_checked():
     for bad in (0.0, -1e-3, float("nan")):
         with pytest.raises(ValueError, match="contact_band"):
             ModelConfig(contact_band=bad)
+
+
+def test_eval_contact_band_reaches_the_solver_and_is_checked():
+    from physdrape.model.physdrape import PhysDrape
+
+    solver = PhysDrape(ModelConfig(latent=8, blocks=2, eval_contact_band=0.007)).solver
+    assert (solver.contact_band, solver.eval_contact_band) == (0.01, 0.007)
+    assert PhysDrape(ModelConfig(latent=8, blocks=2)).solver.eval_contact_band == 0.01
+    with pytest.raises(ValueError, match="eval_contact_band"):
+        ModelConfig(eval_contact_band=0.0)

@@ -269,7 +269,8 @@ def test_followed_planes_change_phi_by_the_followed_samples_penalties():
     to the Φ it held instead of evaluating Φ anew); a full requery returns None."""
     batch, x0 = _case(radii=(0.16, 0.185))
     f_hat = torch.zeros_like(x0)
-    problem = _solver(eta=1.0)._relaxation(batch.cloth, None)
+    solver = _solver(eta=1.0)
+    problem = solver._relaxation(batch.cloth, None, solver.contact_band)
     assert problem.requery(x0, batch.bodies, batch.body_index) is None
     gen = torch.Generator().manual_seed(2)
     changes = []
@@ -295,7 +296,7 @@ def test_followed_planes_are_found_again_only_for_samples_that_moved_min_move():
     band, min_move = 0.01, 1.5e-3
     solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=6, follow_planes=True, contact_band=band,
                      follow_min_move=min_move)
-    problem = solver._relaxation(batch.cloth, None)
+    problem = solver._relaxation(batch.cloth, None, solver.contact_band)
     problem.requery(x0, batch.bodies, batch.body_index)
     found_at = _samples(x0, batch.cloth)
     gen = torch.Generator().manual_seed(3)
@@ -435,3 +436,42 @@ def test_the_bound_of_the_last_full_query_is_returned():
     no_body = []
     solver(x0, batch.cloth, f_hat=None, steps=2, bounds=no_body)
     assert no_body == []
+
+
+def test_eval_mode_steps_with_its_own_contact_band_and_the_step_parts_with_trainings(monkeypatch):
+    """contact_band holds in training and for the first step that `step_parts` makes in every mode
+    (a network's inputs, read as it was trained); eval_contact_band (None: as in training) for the
+    steps in eval mode. The band changes the drape where samples lie between the two bands."""
+    import physdrape.model.stretching_solver as module
+
+    batch, x0 = _case(radii=(0.16, 0.185))
+    bands, original = [], module._Relaxation.__init__
+
+    def init(self, *args, band, **kwargs):
+        bands.append(band)
+        original(self, *args, band=band, **kwargs)
+
+    monkeypatch.setattr(module._Relaxation, "__init__", init)
+    body = {"bodies": batch.bodies, "body_index": batch.body_index}
+
+    def drape(solver):
+        with torch.no_grad():
+            return solver(x0, batch.cloth, f_hat=None, steps=4, **body)
+
+    settings = {"eta": 1.0, "gamma": 0.98, "max_step": 0.01, "requery_every": 2}
+    solver = _solver(contact_band=0.01, eval_contact_band=0.004, **settings)
+    drape(solver)
+    solver.step_parts(x0, batch.cloth, **body)
+    assert bands == [0.01, 0.01]
+    bands.clear()
+    solver.eval()
+    eval_drape = drape(solver)
+    parts = solver.step_parts(x0, batch.cloth, **body)
+    assert bands == [0.004, 0.01]
+    narrow = _solver(contact_band=0.004, **settings).eval()
+    assert torch.equal(eval_drape, drape(narrow))
+    assert not torch.equal(eval_drape, drape(_solver(contact_band=0.01, **settings).eval()))
+    assert all(torch.equal(a, b) for a, b in zip(parts, _solver(contact_band=0.01, **settings).step_parts(
+        x0, batch.cloth, **body)))
+    with pytest.raises(ValueError, match="eval_contact_band"):
+        _solver(eval_contact_band=-1e-3, **settings)

@@ -79,7 +79,11 @@ class ModelConfig:
     contact_band: the two-level solver's contact band [m]: body samples closer to their plane
     than this get the penalty's stiffness at depth ε in its preconditioner (a quadratic model
     then sees the body before the garment enters the margin), and their planes are the ones
-    followed between body searches (`StretchingSolver`); the step inputs are read with it too.
+    followed between body searches (`StretchingSolver`); the step inputs are read with it in
+    every mode, as the network was trained. eval_contact_band: the band of the solver's steps in
+    eval mode (None: contact_band). A wide band holds back every sample near the body, also where
+    the garment has to settle onto it; a narrow one lets a step that is still large (X_init's
+    strain relaxing) run samples into the body.
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
     (stability guard, see `StretchingSolver`; 2 cm lowers E_total at every T against 1 cm,
@@ -151,6 +155,7 @@ class ModelConfig:
     coarse_levels: int = 2
     coarse_smoothing: int = 2
     contact_band: float = 0.01
+    eval_contact_band: float | None = None
     delta: float = 1.05
     margin: float = DEFAULT_MARGIN
     contact_stiffness: float = DEFAULT_STIFFNESS
@@ -191,9 +196,10 @@ class ModelConfig:
         if not self.follow_min_move >= 0:
             raise ValueError(f"ModelConfig.follow_min_move must be ≥ 0 [m] (0: every followed sample at every step), "
                              f"got {self.follow_min_move}")
-        if not self.contact_band > 0:
-            raise ValueError(f"ModelConfig.contact_band must be > 0 [m] (the solver's contact preconditioning "
-                             f"band), got {self.contact_band}")
+        for name in ("contact_band", "eval_contact_band"):
+            band = getattr(self, name)
+            if band is not None and not band > 0:
+                raise ValueError(f"ModelConfig.{name} must be > 0 [m] (the solver's contact band), got {band}")
         if self.eval_requery_every < 1:
             raise ValueError(f"ModelConfig.eval_requery_every must be ≥ 1 (solver steps), got {self.eval_requery_every}")
         if self.passes < 1:

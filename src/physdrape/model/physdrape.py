@@ -109,7 +109,8 @@ class PhysDrape(nn.Module):
                                        inner_iterations=config.inner_iterations,
                                        eval_inner_iterations=config.eval_inner_iterations,
                                        coarse_levels=config.coarse_levels,
-                                       coarse_smoothing=config.coarse_smoothing, contact_band=config.contact_band)
+                                       coarse_smoothing=config.coarse_smoothing, contact_band=config.contact_band,
+                                       eval_contact_band=config.eval_contact_band)
         self.handler = CollisionHandler(margin=config.margin, delta=config.delta, centroid_margin=config.centroid_margin)
 
     def set_eval_planes(self, follow: bool) -> None:

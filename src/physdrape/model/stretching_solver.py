@@ -112,8 +112,11 @@ class StretchingSolver(nn.Module):
         eval_inner_iterations: inner_iterations in eval mode (None: as in training).
         max_halvings: step halvings before a step that does not lower Φ is skipped.
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
-        contact_band: the two-level solver's contact preconditioning band [m]: samples closer to
-            their body plane than this get the penalty's stiffness at depth ε (`_Relaxation`).
+        contact_band: the two-level solver's contact band [m]: samples closer to their body plane
+            than this get the penalty's stiffness at depth ε in the preconditioner, and their
+            planes are the ones followed (`_Relaxation`). The first step that `step_parts` and
+            `preconditioner` make is always made with it (a network reads them as trained).
+        eval_contact_band: contact_band of the steps in eval mode (None: as in training).
     """
 
     def __init__(self, *, kind: SolverKind | str, eta: float, margin: float, contact_stiffness: float,
@@ -122,7 +125,8 @@ class StretchingSolver(nn.Module):
                  coarse_levels: int = 2, coarse_smoothing: int = 2, contact_band: float = 0.01,
                  eval_requery_every: int | None = None, eval_follow_planes: bool | None = None,
                  f_hat_steps: int | None = None, follow_min_move: float = 0.0, inner_steps: int = 0,
-                 inner_iterations: int = 1, eval_inner_iterations: int | None = None) -> None:
+                 inner_iterations: int = 1, eval_inner_iterations: int | None = None,
+                 eval_contact_band: float | None = None) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -140,9 +144,11 @@ class StretchingSolver(nn.Module):
                              f"{inner_steps}, {inner_iterations}, {eval_inner_iterations}")
         if f_hat_steps is not None and f_hat_steps < 0:
             raise ValueError(f"f_hat_steps must be ≥ 0 (None: every step), got {f_hat_steps}")
-        if coarse_levels < 1 or coarse_smoothing < 0 or contact_band < 0 or follow_min_move < 0:
-            raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0, contact_band ≥ 0 [m] and follow_min_move "
-                             f"≥ 0 [m], got {coarse_levels}, {coarse_smoothing}, {contact_band}, {follow_min_move}")
+        eval_contact_band = contact_band if eval_contact_band is None else eval_contact_band
+        if coarse_levels < 1 or coarse_smoothing < 0 or min(contact_band, eval_contact_band) < 0 or follow_min_move < 0:
+            raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0, contact_band and eval_contact_band "
+                             f"≥ 0 [m] and follow_min_move ≥ 0 [m], got {coarse_levels}, {coarse_smoothing}, "
+                             f"{contact_band}, {eval_contact_band}, {follow_min_move}")
         self.kind = SolverKind(kind)
         self.max_step = max_step
         self.margin, self.contact_stiffness = margin, contact_stiffness
@@ -153,7 +159,7 @@ class StretchingSolver(nn.Module):
         self.eval_follow_planes = follow_planes if eval_follow_planes is None else eval_follow_planes
         self.f_hat_steps = f_hat_steps
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
-        self.contact_band = contact_band
+        self.contact_band, self.eval_contact_band = contact_band, eval_contact_band
         self.follow_min_move = follow_min_move
         self.inner_steps, self.inner_iterations = inner_steps, inner_iterations
         self.eval_inner_iterations = eval_inner_iterations
@@ -209,7 +215,7 @@ class StretchingSolver(nn.Module):
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
                    bodies: BodySurface | None, body_index: Tensor | None, bounds: list | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
-        problem = self._relaxation(cloth, f_hat)
+        problem = self._relaxation(cloth, f_hat, self.contact_band if self.training else self.eval_contact_band)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         owner = cloth.vert_garment
 
@@ -294,7 +300,7 @@ class StretchingSolver(nn.Module):
         """F at x, the inverse stiffness blocks and the coarse space factored at x."""
         if self.kind is not SolverKind.TWO_LEVEL:
             raise ValueError(f"the preconditioner belongs to the two_level solver; this solver is {self.kind.value}")
-        problem = self._relaxation(cloth, None)
+        problem = self._relaxation(cloth, None, self.contact_band)
         if bodies is not None:
             problem.requery(x, bodies, body_index, query=query)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
@@ -302,8 +308,8 @@ class StretchingSolver(nn.Module):
         coarse.factor(x, contact, pairs)
         return force, inverse, coarse
 
-    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None) -> _Relaxation:
-        return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=self.contact_band,
+    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float) -> _Relaxation:
+        return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=band,
                            min_move=self.follow_min_move)
 
     @torch.no_grad()
