@@ -54,6 +54,9 @@ def parse_setting(text: str) -> tuple[str, dict]:
                 if value.lower() not in ("true", "false"):
                     raise ValueError("give true or false")
                 out[key] = value.lower() == "true"
+            elif types[key] is type(None):  # an optional field that defaults to None: null, or a number
+                out[key] = None if value.lower() == "null" else (int(value) if value.lstrip("-").isdigit()
+                                                                 else float(value))
             else:
                 out[key] = types[key](value)
         except ValueError as exc:
