@@ -54,8 +54,9 @@ def test_contact_band_reaches_the_solver_and_is_checked():
 def test_eval_contact_band_reaches_the_solver_and_is_checked():
     from physdrape.model.physdrape import PhysDrape
 
-    solver = PhysDrape(ModelConfig(latent=8, blocks=2, eval_contact_band=0.007)).solver
-    assert (solver.contact_band, solver.eval_contact_band) == (0.01, 0.007)
-    assert PhysDrape(ModelConfig(latent=8, blocks=2)).solver.eval_contact_band == 0.01
+    solver = PhysDrape(ModelConfig(latent=8, blocks=2, eval_contact_band=0.005)).solver
+    assert (solver.contact_band, solver.eval_contact_band) == (0.01, 0.005)
+    assert PhysDrape(ModelConfig(latent=8, blocks=2, eval_contact_band=None)).solver.eval_contact_band == 0.01
+    assert ModelConfig().eval_contact_band == 0.007  # the bundled model's config.json predates the field
     with pytest.raises(ValueError, match="eval_contact_band"):
         ModelConfig(eval_contact_band=0.0)
