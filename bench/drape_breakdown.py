@@ -17,7 +17,7 @@ spent in each, with how often it ran:
 - the graph inputs and the GNN;
 - the stretching solver, and within it the body requeries, the coarse factorisations, each
   step's forces with the stiffness and contact blocks and their inverses (one launch and its
-  inversion, `_Relaxation.step_terms`), the coarse solves, the stiffness products of the first
+  inversion, `Relaxation.step_terms`), the coarse solves, the stiffness products of the first
   steps' inner iterations and the line-search potentials (the rest: the conjugation, clips and
   updates);
 - the collision handler and the metrics (the drape's `metrics_s`);
@@ -51,12 +51,12 @@ PHASES = [
     ("graph inputs", "physdrape.model.physdrape", "PhysDrape", "_graph_inputs", 0),
     ("GNN", "physdrape.model.gnn", "EncodeProcessDecode", "forward", 0),
     ("stretching solver", "physdrape.model.stretching_solver", "StretchingSolver", "forward", 0),
-    ("body requeries", "physdrape.model.stretching_solver", "_Relaxation", "requery", 1),
+    ("body requeries", "physdrape.model.relaxation", "Relaxation", "requery", 1),
     ("coarse factorisations", "physdrape.physics.coarse_space", "CoarseSpace", "factor", 1),
-    ("forces, stiffness blocks and inverses", "physdrape.model.stretching_solver", "_Relaxation", "step_terms", 1),
+    ("forces, stiffness blocks and inverses", "physdrape.model.relaxation", "Relaxation", "step_terms", 1),
     ("coarse solves", "physdrape.physics.coarse_space", "CoarseSpace", "solve", 1),
     ("stiffness products (inner iterations)", "physdrape.physics.coarse_space", "CoarseSpace", "stiffness_product", 1),
-    ("line-search potentials", "physdrape.model.stretching_solver", "_Relaxation", "potential", 1),
+    ("line-search potentials", "physdrape.model.relaxation", "Relaxation", "potential", 1),
     ("collision handler", "physdrape.model.collision_handler", "CollisionHandler", "forward", 0),
 ]
 #: The Warp kernels of the body BVH searches (`geometry.body_bvh`), by their function names.

@@ -218,7 +218,7 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
     query every eval_requery_every steps and a local one at the steps between;
     Draper(follow_planes=False) holds the planes between full queries every requery_every steps,
     as in training."""
-    import physdrape.model.stretching_solver as solver_module
+    import physdrape.model.relaxation as relaxation_module
 
     default = Draper(tiny_checkpoint, steps=10, body=anny_body)
     held = Draper(tiny_checkpoint, steps=10, body=anny_body, follow_planes=False)
@@ -226,13 +226,13 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
     assert not held.model_config.eval_follow_planes and not held.model.solver.eval_follow_planes
     assert held.model_config.eval_requery_every == held.model.solver.eval_requery_every == 3  # training's
     assert held.model_config.follow_planes == default.model_config.follow_planes  # training's unchanged
-    calls, original = [], solver_module._Relaxation.requery
+    calls, original = [], relaxation_module.Relaxation.requery
 
     def requery(self, x, bodies, body_index, **kwargs):
         calls.append(kwargs.get("local", False))
         return original(self, x, bodies, body_index, **kwargs)
 
-    monkeypatch.setattr(solver_module._Relaxation, "requery", requery)
+    monkeypatch.setattr(relaxation_module.Relaxation, "requery", requery)
     [res] = default.drape("default")
     assert calls == [False, *[True] * 7, False, True] and res.metrics["b2g_percent"] == 0.0
     calls.clear()

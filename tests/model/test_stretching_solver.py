@@ -6,6 +6,7 @@ import pytest
 import torch
 from drape_cases import make_input, tube
 
+from physdrape.model import relaxation
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
 from physdrape.physics import Material
 from physdrape.physics.coarse_space import CoarseSpace
@@ -193,16 +194,15 @@ def test_f_hat_steps_carry_f_hat_through_the_first_steps_only(kind):
 def test_eval_mode_runs_its_own_plane_schedule(monkeypatch):
     """requery_every / follow_planes hold in training, eval_requery_every / eval_follow_planes in
     eval mode (None: as in training); the same module switches with train() / eval()."""
-    import physdrape.model.stretching_solver as module
 
     batch, x0 = _case(radii=(0.16, 0.185))
-    calls, original = [], module._Relaxation.requery
+    calls, original = [], relaxation.Relaxation.requery
 
     def requery(self, x, bodies, body_index, **kwargs):
         calls.append(kwargs.get("local", False))
         return original(self, x, bodies, body_index, **kwargs)
 
-    monkeypatch.setattr(module._Relaxation, "requery", requery)
+    monkeypatch.setattr(relaxation.Relaxation, "requery", requery)
 
     def schedule(solver):
         calls.clear()
@@ -224,10 +224,9 @@ def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch)
     """With follow_planes the samples within the contact band of their planes get, at every
     step, the planes of a body query at that step's positions (found by the local walk from the
     last step's faces); the others keep theirs. Each step still lowers Φ on the planes it holds."""
-    import physdrape.model.stretching_solver as module
 
     batch, x0 = _case(radii=(0.16, 0.185))
-    held, original = [], module._Relaxation.requery
+    held, original = [], relaxation.Relaxation.requery
 
     def copied(planes):  # the followed planes move in place: the state of each step kept
         return None if planes is None else tuple(p.clone() for p in planes)
@@ -238,7 +237,7 @@ def test_followed_planes_are_the_closest_point_planes_at_every_step(monkeypatch)
         held.append((kwargs.get("local", False), x.detach().clone(), before, copied(self.planes)))
         return change
 
-    monkeypatch.setattr(module._Relaxation, "requery", requery)
+    monkeypatch.setattr(relaxation.Relaxation, "requery", requery)
     band = 0.01
     solver = _solver(eta=1.0, gamma=0.98, max_step=0.01, requery_every=4, follow_planes=True, contact_band=band)
     trace = []
@@ -400,11 +399,10 @@ def test_planes_a_differentiated_force_may_keep_are_not_moved_by_the_next_follow
     """The followed planes move in place between steps; where the positions carry a gradient
     (training through followed planes) each step's planes are its own, so that the backward of a
     step's contact force reads the planes that step held."""
-    import physdrape.model.stretching_solver as module
 
     batch, x0 = _case(radii=(0.16, 0.185))
     gen = torch.Generator().manual_seed(3)
-    problem = module._Relaxation(batch.cloth, None, margin=2e-3, stiffness=2.5e3, band=0.01)
+    problem = relaxation.Relaxation(batch.cloth, None, margin=2e-3, stiffness=2.5e3, band=0.01)
     problem.requery(x0, batch.bodies, batch.body_index)
     for grad in (True, False):
         x1 = (x0 + 3e-3 * torch.randn(x0.shape, generator=gen, dtype=x0.dtype)).requires_grad_(grad)
@@ -442,16 +440,15 @@ def test_eval_mode_steps_with_its_own_contact_band_and_the_step_parts_with_train
     """contact_band holds in training and for the first step that `step_parts` makes in every mode
     (a network's inputs, read as it was trained); eval_contact_band (None: as in training) for the
     steps in eval mode. The band changes the drape where samples lie between the two bands."""
-    import physdrape.model.stretching_solver as module
 
     batch, x0 = _case(radii=(0.16, 0.185))
-    bands, original = [], module._Relaxation.__init__
+    bands, original = [], relaxation.Relaxation.__init__
 
     def init(self, *args, band, **kwargs):
         bands.append(band)
         original(self, *args, band=band, **kwargs)
 
-    monkeypatch.setattr(module._Relaxation, "__init__", init)
+    monkeypatch.setattr(relaxation.Relaxation, "__init__", init)
     body = {"bodies": batch.bodies, "body_index": batch.body_index}
 
     def drape(solver):
@@ -475,3 +472,32 @@ def test_eval_mode_steps_with_its_own_contact_band_and_the_step_parts_with_train
         x0, batch.cloth, **body)))
     with pytest.raises(ValueError, match="eval_contact_band"):
         _solver(eval_contact_band=-1e-3, **settings)
+
+
+def test_a_step_stops_a_vertex_from_beyond_the_band_at_the_margin():
+    """Relaxation.short_of_margin: a vertex farther than the band from its plane that the move
+    would carry into the margin gets the move scaled to end at the margin; vertices within the
+    band, moving away or staying outside the margin, and a relaxation without planes keep theirs."""
+    batch, x0 = _case()
+    cloth = batch.cloth
+    problem = relaxation.Relaxation(cloth, None, margin=2e-3, stiffness=2.5e3, band=7e-3)
+    move = torch.zeros_like(x0)
+    assert torch.equal(problem.short_of_margin(move + 1.0, x0), move + 1.0)  # no planes yet
+    n = x0.shape[0] + cloth.faces.shape[0]
+    normal = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand(n, 3).clone()
+    x = x0.clone()
+    height = torch.tensor([0.02, 0.02, 0.005, 0.02, 0.02], dtype=torch.float64)  # the first vertices' heights
+    x[:5, 1] = height
+    closest = torch.cat([x, x[cloth.faces].mean(1)]).clone()
+    closest[:, 1] = 0.0  # the plane y = 0 under every sample
+    problem.planes = (closest, normal)
+    move[:5] = torch.tensor([[0.001, -0.03, 0.0],   # beyond the band, through the plane: stopped at the margin
+                             [0.0, -0.01, 0.002],   # beyond the band, ends outside the margin: kept
+                             [0.0, -0.01, 0.0],     # within the band: kept
+                             [0.0, 0.01, 0.0],      # moving away: kept
+                             [0.0, -0.018, 0.0]], dtype=torch.float64)  # ends exactly at the margin: kept
+    out = problem.short_of_margin(move, x)
+    scale = (0.02 - 2e-3) / 0.03
+    assert torch.allclose(out[0], move[0] * scale)
+    assert torch.allclose((x[0] + out[0])[1], torch.tensor(2e-3, dtype=torch.float64))
+    assert torch.equal(out[1:], move[1:])

@@ -10,19 +10,11 @@ from functools import partial
 import torch
 from torch import Tensor, nn
 
-from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface, SurfaceQuery
+from physdrape.model.relaxation import Relaxation
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.coarse_space import CoarseSpace
-from physdrape.physics.contact import (
-    PlaneFollower,
-    contact_samples,
-    garment_energy,
-    plane_contact_forces,
-    query_samples,
-)
-from physdrape.physics.forces import extra_blocks, internal_forces, tie_forces
-from physdrape.physics.potential import GarmentPotential
+from physdrape.physics.forces import internal_forces
 from physdrape.threads import one_blas_thread
 
 
@@ -114,7 +106,7 @@ class StretchingSolver(nn.Module):
         coarse_levels, coarse_smoothing: the two-level solver's patches (`CoarseSpace`).
         contact_band: the two-level solver's contact band [m]: samples closer to their body plane
             than this get the penalty's stiffness at depth ε in the preconditioner, and their
-            planes are the ones followed (`_Relaxation`). The first step that `step_parts` and
+            planes are the ones followed (`Relaxation`). The first step that `step_parts` and
             `preconditioner` make is always made with it (a network reads them as trained).
         eval_contact_band: contact_band of the steps in eval mode (None: as in training).
     """
@@ -256,7 +248,7 @@ class StretchingSolver(nn.Module):
                 z_dir = torch.where(uphill[owner, None], z, conjugate)
             else:
                 z_dir = z
-            move = self._clip(step * z_dir)
+            move = problem.short_of_margin(self._clip(step * z_dir), x)
             x0 = x.detach()
             alpha, phi = self._line_search(problem.potential, x0, problem.potential(x0) if phi is None else phi,
                                            move.detach(), per_garment(move.detach() * force.detach()), owner)
@@ -308,8 +300,8 @@ class StretchingSolver(nn.Module):
         coarse.factor(x, contact, pairs)
         return force, inverse, coarse
 
-    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float) -> _Relaxation:
-        return _Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=band,
+    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float) -> Relaxation:
+        return Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=band,
                            min_move=self.follow_min_move)
 
     @torch.no_grad()
@@ -380,127 +372,3 @@ def _precondition(stiffness_inverse: Tensor, coarse: CoarseSpace, force: Tensor)
     """C F = K⁻¹ F + P (Pᵀ K P)⁻¹ Pᵀ F: forces (V, 3) [N] → moves (V, 3) [m], with K⁻¹ from the
     per-vertex inverse blocks (V, 3, 3) and a factored coarse space."""
     return (stiffness_inverse @ force.unsqueeze(-1)).squeeze(-1) + coarse.solve(force)
-
-
-class _Relaxation:
-    """What the two-level solver relaxes: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x,
-    with E_c the contact penalty of `physics.contact` at the vertices and face centroids on
-    closest-point planes of the body, held between `requery` calls.
-
-    The contact's Gauss-Newton blocks 6 k_c ReLU(ε − d) n nᵀ vanish at d ≥ ε, so a quadratic
-    model of Φ does not see the body until the garment is in its margin; samples closer to their
-    plane than `band` [m] get the blocks of depth ε instead (a preconditioner only: the line
-    search still descends Φ). A local requery finds again the planes of the samples within `band`
-    of theirs that moved more than `min_move` [m] since their planes were found.
-    """
-
-    def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float,
-                 min_move: float = 0.0) -> None:
-        self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
-        self.min_move = min_move
-        self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
-        self._faces: Tensor | None = None  # the body triangle each sample's plane touches
-        self._found_at: Tensor | None = None  # where each sample was when its plane was found
-        self._follower: PlaneFollower | None = None  # the local requeries' recorded launch (made at the first)
-        self._follower_holds = False  # whether the follower holds the current planes
-        self.bound: DistanceBound | None = None  # the samples' distances at the last full query
-        self._bound_bodies: BodySurface | None = None  # the bodies that query asked
-        extra = extra_blocks(cloth)  # independent of x: formed once per solve, in the local terms' float64
-        self._extra = None if extra is None else extra.to(torch.float64)
-        self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
-
-    def drop_f_hat(self) -> None:
-        """Relax without the −f̂·x term from now on, on the same held planes."""
-        self.f_hat = None
-        self._potential.drop_external()
-
-    def requery(self, x: Tensor, bodies: BodySurface, body_index: Tensor | None, *,
-                local: bool = False, query: SurfaceQuery | None = None) -> Tensor | None:
-        """Query the body at the samples of x and hold the planes.
-
-        local: only the samples within the contact band of their held planes (and, with
-        `min_move`, moved that far since their planes were found); the others keep theirs (no
-        contact term or block reaches them at this step: they are more than a band away from the
-        body; or their planes are a fraction of a millimetre old). Returns the change of Φ at x
-        per garment (G,) [J], float64, that the new planes make (only the followed samples'
-        penalties change), or None after a full query (every plane may have changed: Φ is
-        evaluated anew). query: x's samples' full query, made already (a `query_samples_near`
-        stand-in's distance is a lower bound, which keeps the held bound valid).
-        """
-        with torch.no_grad():
-            if not local or self.planes is None:
-                q = query if query is not None else query_samples(x.detach(), self.cloth.faces, bodies, body_index,
-                                                                  bound=self._bound_on(bodies))
-                # float64, the contact kernels' dtype (converted once per requery, not per evaluation)
-                self.planes = (q.closest.to(torch.float64).contiguous(), q.normal.to(torch.float64).contiguous())
-                samples = contact_samples(x.detach().to(torch.float64), self.cloth.faces)
-                self._faces, self._found_at, self._follower_holds = q.face, samples, False
-                self.bound, self._bound_bodies = DistanceBound.of(samples, q.signed_distance), bodies
-                change = None
-            else:
-                if self._follower is None or self._follower.bodies is not bodies:
-                    self._follower = PlaneFollower(self.cloth.faces, self.cloth.num_verts, bodies, body_index,
-                                                   band=self.band, min_move=self.min_move, stiffness=self.stiffness,
-                                                   margin=self.margin, device=x.device)
-                    self._follower_holds = False
-                follower = self._follower
-                if not self._follower_holds:
-                    follower.hold(*self.planes, self._faces, self._found_at)
-                    self._follower_holds = True
-                change = garment_energy(follower(x, bound=self._bound_on(bodies)), self.cloth)
-                # the follower's planes, moved in place at each call (copies where a differentiated
-                # force may keep them for its backward)
-                self.planes = ((follower.closest, follower.normal) if not x.requires_grad
-                               else (follower.closest.clone(), follower.normal.clone()))
-                self._faces, self._found_at = follower.face, follower.found_at
-        self._potential.hold(self.planes)
-        return change
-
-    def _bound_on(self, bodies: BodySurface) -> DistanceBound | None:
-        """The last full query's bound where it was of these bodies (it decides the side of the
-        samples in doubt that cannot have crossed their surface since), else None."""
-        return self.bound if bodies is self._bound_bodies else None
-
-    def potential(self, x: Tensor) -> Tensor:
-        """Φ per garment (G,) [J], float64 (`physics.potential`: one launch), on the held planes."""
-        return self._potential(x)
-
-    def force(self, x: Tensor) -> Tensor:
-        """−∇Φ (V, 3) [N]."""
-        force = internal_forces(x, self.cloth)
-        if self.planes is not None:
-            force = force + plane_contact_forces(x, self.cloth.faces, *self.planes, stiffness=self.stiffness,
-                                                 margin=self.margin)
-        if self.f_hat is not None:
-            force = force + self.f_hat
-        return force
-
-    def step_terms(self, x: Tensor, *, pairs: tuple[Tensor, int] | None = None
-                   ) -> tuple[Tensor, Tensor | None, Tensor, Tensor | None]:
-        """What a step starts from at x, in x's dtype, from one launch (`GarmentPotential.local_terms`):
-
-        - the force −∇Φ (V, 3) [N]; where x or f̂ carries a gradient (training), the force of
-          `force`, differentiable through the same per-element formulas;
-        - the contact's per-vertex Gauss-Newton blocks (V, 3, 3) [N/m] on the held planes, samples
-          within `band` of their plane taken at depth ≥ ε, plus the grip's and the diagonal blocks
-          of the stitches' and layer pairs' (`physics.forces.extra_blocks`; the coarse space adds
-          their coupling); or None without any;
-        - the inverses of the per-vertex stiffness blocks K_i (strain, bending, contact) (V, 3, 3)
-          [m/N], each floored relative to its own stiffness (`physics.majorant.compliance`): each
-          vertex gets the compliance of its own stiffness;
-        - with `pairs` (a coarse space's `pair_layout`), the strain majorant's pair blocks
-          (P, 3, 3) float64 from the same launch, for the coarse factorisation (valid until the
-          next call); else None.
-        """
-        extra = self._extra
-        terms = self._potential.local_terms(x, extra=extra,
-                                            rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
-                                            tiny=float(torch.finfo(x.dtype).tiny), pairs=pairs)
-        if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
-            force = self.force(x)
-        else:
-            force = terms.force.to(x.dtype, copy=True)  # the terms are the potential's buffers: copied out
-            ties = tie_forces(x.detach(), self.cloth)
-            force = force if ties is None else force + ties
-        contact = None if self.planes is None and extra is None else terms.contact.to(x.dtype, copy=True)
-        return force, contact, terms.compliance.to(x.dtype, copy=True), terms.pairs
