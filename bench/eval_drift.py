@@ -7,8 +7,8 @@ Reruns the model rows of the evaluation (GNN only, PhysDrape at T = 3 and T = 15
 alone at T = 3 and T = 15) on the evaluation's test instances with the bundled model (or
 `--checkpoint`, a model trained since), and divides their mean E_total by the per-instance
 references recorded in the eval file: the same ratios as `eval.md`'s "E_total / reference"
-column, without rerunning the oracle (about an hour), and the mean B2G % beside the recorded
-one. A row the eval file lacks shows its values now only. A change that should leave the
+column, without rerunning the oracle (about an hour), the mean B2G % beside the recorded one,
+and the mean E_strain over the references' (as `eval.md`'s E_strain ratio). A row the eval file lacks shows its values now only. A change that should leave the
 drape's physics alone (a faster kernel, a cache) is checked this way; a change of the physics
 needs the full `physdrape eval`. Writes <out>.md and <out>.json with the command and the
 commit.
@@ -34,6 +34,7 @@ from physdrape.eval.evaluate import Contact, run_model, total_energy
 from physdrape.eval.instances import split_instances
 from physdrape.model.config import Variant
 from physdrape.physics.metrics import b2g_percent
+from physdrape.physics.strain import strain_energy
 from physdrape.provenance import provenance
 
 #: eval.json row → (variant, solver steps, with the network)
@@ -66,6 +67,8 @@ def main() -> None:
     reference = [r["energy_total"] for r in test["reference"]["per_instance"]]
     recorded = {row: [r["energy_total"] for r in test["rows"][row]["per_instance"]] for row in ROWS if row in test["rows"]}
     recorded_b2g = {row: [r["b2g_percent"] for r in test["rows"][row]["per_instance"]] for row in recorded}
+    reference_strain = [r["strain"] for r in test["reference"]["per_instance"]]
+    recorded_strain = {row: [r["strain"] for r in test["rows"][row]["per_instance"]] for row in recorded}
     config = EvalConfig(**{k: v for k, v in record["config"].items() if k in EvalConfig.__dataclass_fields__})
     instances = split_instances(config, get_anny_body())
     if len(instances) != len(reference):
@@ -81,6 +84,7 @@ def main() -> None:
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
     b2g = {row: [] for row in ROWS}
+    strain = {row: [] for row in ROWS}
     wall = {row: [] for row in ROWS}
     for instance in instances:
         batch = instance.batch().drape
@@ -88,6 +92,7 @@ def main() -> None:
             x, seconds = run_model(models[variant], batch, steps=steps, network=network)
             now[row].append(float(total_energy(x, batch, contact)[0]))
             b2g[row].append(float(b2g_percent(x, batch.garments, batch.bodies, batch.body_index)[0]))
+            strain[row].append(float(strain_energy(x, batch.cloth).sum()))  # one garment per batch
             wall[row].append(seconds)
     rows = []
     for row in ROWS:
@@ -98,13 +103,18 @@ def main() -> None:
                      "change": None if before is None else after / before - 1.0,
                      "largest_instance_change": worst, "model_wall_median_s": statistics.median(wall[row]),
                      "b2g_percent_recorded": statistics.mean(recorded_b2g[row]) if row in recorded else None,
-                     "b2g_percent_now": statistics.mean(b2g[row])})
+                     "b2g_percent_now": statistics.mean(b2g[row]),
+                     "strain_ratio_recorded": (sum(recorded_strain[row]) / sum(reference_strain)
+                                               if row in recorded else None),
+                     "strain_ratio_now": sum(strain[row]) / sum(reference_strain)})
     command = shlex.join(["python", *sys.argv])
     out = {"command": command, "provenance": provenance(), "eval_file": args.eval, "checkpoint": str(checkpoint),
            "eval_commit": record["versions"].get("git_commit"),
            "load_average": os.getloadavg(), "instances": len(instances), "rows": rows,
            "per_instance": {"reference": reference, "recorded": recorded, "now": now,
-                            "b2g_percent_recorded": recorded_b2g, "b2g_percent_now": b2g}}
+                            "b2g_percent_recorded": recorded_b2g, "b2g_percent_now": b2g,
+                            "reference_strain": reference_strain, "strain_recorded": recorded_strain,
+                            "strain_now": strain}}
     lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
              *source_lines(command, out["provenance"]),
              f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
@@ -113,15 +123,16 @@ def main() -> None:
              + "; 1 torch thread; load average "
              + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
              "| row | E_total / reference, recorded | now | change | largest change of one instance "
-             "| B2G % (mean), recorded | now |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "| B2G % (mean), recorded | now | E_strain / reference's, recorded | now |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         if r["ratio_recorded"] is None:
-            lines.append(f"| {r['row']} | – | {r['ratio_now']:.4f} | – | – | – | {r['b2g_percent_now']:.2f} |")
+            lines.append(f"| {r['row']} | – | {r['ratio_now']:.4f} | – | – | – | {r['b2g_percent_now']:.2f} | – | "
+                         f"{r['strain_ratio_now']:.3f} |")
             continue
         lines.append(f"| {r['row']} | {r['ratio_recorded']:.4f} | {r['ratio_now']:.4f} | {100 * r['change']:+.2f} % | "
                      f"{100 * r['largest_instance_change']:.2f} % | {r['b2g_percent_recorded']:.2f} | "
-                     f"{r['b2g_percent_now']:.2f} |")
+                     f"{r['b2g_percent_now']:.2f} | {r['strain_ratio_recorded']:.3f} | {r['strain_ratio_now']:.3f} |")
     write_report(args.out, lines, out)
 
 
