@@ -9,9 +9,9 @@ alone at T = 3 and T = 15) on the evaluation's test instances with the bundled m
 references recorded in the eval file: the same ratios as `eval.md`'s "E_total / reference"
 column, without rerunning the oracle (about an hour), the mean B2G % beside the recorded one,
 and the mean E_strain over the references' (as `eval.md`'s E_strain ratio). A row the eval
-file lacks shows its values now only. A change that should leave the drape's physics alone (a faster kernel, a cache) is checked this way; a change of the physics
-needs the full `physdrape eval`. Writes <out>.md and <out>.json with the command and the
-commit.
+file lacks shows its values now only. A change that should leave the drape's physics alone
+(a faster kernel, a cache) is checked this way; a change of the physics needs the full
+`physdrape eval`. Writes <out>.md and <out>.json with the command and the commit.
 """
 
 from __future__ import annotations
