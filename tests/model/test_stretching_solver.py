@@ -501,3 +501,26 @@ def test_a_step_stops_a_vertex_from_beyond_the_band_at_the_margin():
     assert torch.allclose(out[0], move[0] * scale)
     assert torch.allclose((x[0] + out[0])[1], torch.tensor(2e-3, dtype=torch.float64))
     assert torch.equal(out[1:], move[1:])
+
+
+def test_a_vertex_that_moved_gets_the_band_block_within_the_band_plus_its_move():
+    """Relaxation(reach=...): at a step after the first, a vertex beyond the band gets the depth-ε
+    contact block 6 k_c ε n nᵀ while within band + its move since the last step of its plane (up
+    to reach); the others' blocks are those of the band alone; the first step has none of them."""
+    batch, x0 = _case(radii=(0.16, 0.185))
+    band, reach, k_c, margin = 4e-3, 1e-2, 2.5e3, 2e-3
+    made = {r: relaxation.Relaxation(batch.cloth, None, margin=margin, stiffness=k_c, band=band, reach=r)
+            for r in (None, reach)}
+    for problem in made.values():
+        problem.requery(x0, batch.bodies, batch.body_index)
+    first = {r: p.step_terms(x0)[1] for r, p in made.items()}
+    assert torch.equal(first[None], first[reach])
+    gen = torch.Generator().manual_seed(3)
+    x1 = x0 + 6e-3 * torch.rand(x0.shape, generator=gen, dtype=torch.float64)
+    second = {r: p.step_terms(x1)[1] for r, p in made.items()}
+    closest, normal = (plane[:x0.shape[0]] for plane in made[reach].planes)
+    distance = ((x1 - closest) * normal).sum(-1)
+    within = (distance >= band) & (distance < (band + (x1 - x0).norm(dim=-1)).clamp(max=reach))
+    assert within.any() and (~within).any()
+    expected = 6.0 * k_c * margin * within[:, None, None] * normal[:, :, None] * normal[:, None, :]
+    assert torch.allclose(second[reach] - second[None], expected, rtol=1e-12, atol=1e-12)

@@ -30,14 +30,20 @@ class Relaxation:
     The contact's Gauss-Newton blocks 6 k_c ReLU(ε − d) n nᵀ vanish at d ≥ ε, so a quadratic
     model of Φ does not see the body until the garment is in its margin; samples closer to their
     plane than `band` [m] get the blocks of depth ε instead (a preconditioner only: the line
-    search still descends Φ). A local requery finds again the planes of the samples within `band`
-    of theirs that moved more than `min_move` [m] since their planes were found.
+    search still descends Φ). A vertex beyond the band that moved m in the last step gets that
+    block too while it is within band + m of its plane, up to `reach` [m] (None: band): where
+    the garment still moves far, a narrow band would let its steps run into the body (then
+    `short_of_margin` stops them, and the stopped vertices hold their neighbours back). A local
+    requery finds again the planes of the samples within `band` of theirs that moved more than
+    `min_move` [m] since their planes were found.
     """
 
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float,
-                 min_move: float = 0.0) -> None:
+                 min_move: float = 0.0, reach: float | None = None) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.min_move = min_move
+        self.reach = band if reach is None else reach
+        self._last_x: Tensor | None = None  # where the last step started (`step_terms`), float64
         self.planes: tuple[Tensor, Tensor] | None = None  # closest points and normals of the samples
         self._faces: Tensor | None = None  # the body triangle each sample's plane touches
         self._found_at: Tensor | None = None  # where each sample was when its plane was found
@@ -101,6 +107,21 @@ class Relaxation:
         samples in doubt that cannot have crossed their surface since), else None."""
         return self.bound if bodies is self._bound_bodies else None
 
+    def _moving_blocks(self, x: Tensor, extra: Tensor | None) -> Tensor | None:
+        """`extra` (V, 3, 3) or None plus the depth-ε contact blocks of the vertices beyond the band
+        within band + their move since the last call of their plane (up to `reach`); x (V, 3)
+        float64 becomes the last call's positions."""
+        last, self._last_x = self._last_x, x.clone()
+        if last is None or self.planes is None or self.reach <= self.band:
+            return extra
+        v = x.shape[0]
+        closest, normal = self.planes[0][:v], self.planes[1][:v]
+        distance = ((x - closest) * normal).sum(-1)
+        reach = (self.band + (x - last).norm(dim=-1)).clamp(max=self.reach)
+        near = ((distance >= self.band) & (distance < reach)).to(x.dtype)
+        blocks = (6.0 * self.stiffness * self.margin) * near[:, None, None] * (normal[:, :, None] * normal[:, None, :])
+        return blocks if extra is None else extra + blocks
+
     def short_of_margin(self, move: Tensor, x: Tensor) -> Tensor:
         """The step `move` (V, 3) [m] from x with each vertex's move scaled down, where it would
         carry the vertex from beyond the band into the margin of its held plane, to the move that
@@ -144,7 +165,8 @@ class Relaxation:
         - the force −∇Φ (V, 3) [N]; where x or f̂ carries a gradient (training), the force of
           `force`, differentiable through the same per-element formulas;
         - the contact's per-vertex Gauss-Newton blocks (V, 3, 3) [N/m] on the held planes, samples
-          within `band` of their plane taken at depth ≥ ε, plus the grip's and the diagonal blocks
+          within `band` of their plane (vertices that moved since the last call: within band +
+          their move, up to `reach`) taken at depth ≥ ε, plus the grip's and the diagonal blocks
           of the stitches' and layer pairs' (`physics.forces.extra_blocks`; the coarse space adds
           their coupling); or None without any;
         - the inverses of the per-vertex stiffness blocks K_i (strain, bending, contact) (V, 3, 3)
@@ -154,7 +176,7 @@ class Relaxation:
           (P, 3, 3) float64 from the same launch, for the coarse factorisation (valid until the
           next call); else None.
         """
-        extra = self._extra
+        extra = self._moving_blocks(x.detach().to(torch.float64), self._extra)
         terms = self._potential.local_terms(x, extra=extra,
                                             rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
                                             tiny=float(torch.finfo(x.dtype).tiny), pairs=pairs)

@@ -302,7 +302,7 @@ class StretchingSolver(nn.Module):
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float) -> Relaxation:
         return Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=band,
-                          min_move=self.follow_min_move)
+                          min_move=self.follow_min_move, reach=max(band, self.contact_band))
 
     @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,
