@@ -439,14 +439,15 @@ def test_the_bound_of_the_last_full_query_is_returned():
 def test_eval_mode_steps_with_its_own_contact_band_and_the_step_parts_with_trainings(monkeypatch):
     """contact_band holds in training and for the first step that `step_parts` makes in every mode
     (a network's inputs, read as it was trained); eval_contact_band (None: as in training) for the
-    steps in eval mode. The band changes the drape where samples lie between the two bands."""
+    steps in eval mode, with the training band as the reach of the vertices that moved. The band
+    changes the drape where samples lie between the two bands."""
 
     batch, x0 = _case(radii=(0.16, 0.185))
     bands, original = [], relaxation.Relaxation.__init__
 
-    def init(self, *args, band, **kwargs):
-        bands.append(band)
-        original(self, *args, band=band, **kwargs)
+    def init(self, *args, band, reach=None, **kwargs):
+        bands.append((band, reach))
+        original(self, *args, band=band, reach=reach, **kwargs)
 
     monkeypatch.setattr(relaxation.Relaxation, "__init__", init)
     body = {"bodies": batch.bodies, "body_index": batch.body_index}
@@ -459,14 +460,12 @@ def test_eval_mode_steps_with_its_own_contact_band_and_the_step_parts_with_train
     solver = _solver(contact_band=0.01, eval_contact_band=0.004, **settings)
     drape(solver)
     solver.step_parts(x0, batch.cloth, **body)
-    assert bands == [0.01, 0.01]
+    assert bands == [(0.01, 0.01), (0.01, 0.01)]
     bands.clear()
     solver.eval()
     eval_drape = drape(solver)
     parts = solver.step_parts(x0, batch.cloth, **body)
-    assert bands == [0.004, 0.01]
-    narrow = _solver(contact_band=0.004, **settings).eval()
-    assert torch.equal(eval_drape, drape(narrow))
+    assert bands == [(0.004, 0.01), (0.01, 0.01)]
     assert not torch.equal(eval_drape, drape(_solver(contact_band=0.01, **settings).eval()))
     assert all(torch.equal(a, b) for a, b in zip(parts, _solver(contact_band=0.01, **settings).step_parts(
         x0, batch.cloth, **body)))
