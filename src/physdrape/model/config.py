@@ -84,11 +84,12 @@ class ModelConfig:
     eval mode (None: contact_band). A wide band holds back every sample near the body, also where
     the garment has to settle onto it; a narrow one lets a step that is still large (X_init's
     strain relaxing) run samples into the body (the solver's steps stop a vertex from beyond the
-    band at its margin, `Relaxation.short_of_margin`). 7 mm: on the held-out set the bundled
-    model at T = 3 ends at 1.055 times the teacher drapes' E_total against 1.056 at 1 cm, at
-    T = 15 at 1.013 against 1.015, lower at every T from 2; the solver alone 1.135 against 1.131
-    at T = 3, 1.019 against 1.021 at T = 15; 6 and 5 mm lower the model's a little more and slow
-    the solver alone's first steps more (`results/solver_settings_eval_contact_band.md`).
+    band at its margin, and a vertex that moved far in the last step gets the band's block up to
+    contact_band; `Relaxation`). 7 mm: on the held-out set the bundled model at T = 3 ends at
+    1.053 times the teacher drapes' E_total against 1.056 at 1 cm, at T = 15 at 1.014 against
+    1.015, lower at every T from 2; the solver alone 1.128 against 1.131 at T = 3, 1.020 against
+    1.021 at T = 15 (`results/solver_settings_eval_contact_band.md`; 6 mm there: 1.052, 1.013,
+    the solver alone 1.128, 1.019).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
     step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
     (stability guard, see `StretchingSolver`; 2 cm lowers E_total at every T against 1 cm,
