@@ -107,16 +107,22 @@ class Relaxation:
         samples in doubt that cannot have crossed their surface since), else None."""
         return self.bound if bodies is self._bound_bodies else None
 
+    def _vertex_planes(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """The vertices' signed distances to their held planes (V,) [m] and the planes' normals
+        (V, 3), in x's dtype; x (V, 3)."""
+        closest, normal = (plane[:x.shape[0]].to(x.dtype) for plane in self.planes)
+        return ((x - closest) * normal).sum(-1), normal
+
     def _moving_blocks(self, x: Tensor, extra: Tensor | None) -> Tensor | None:
         """`extra` (V, 3, 3) or None plus the depth-ε contact blocks of the vertices beyond the band
         within band + their move since the last call of their plane (up to `reach`); x (V, 3)
         float64 becomes the last call's positions."""
-        last, self._last_x = self._last_x, x.clone()
-        if last is None or self.planes is None or self.reach <= self.band:
+        if self.reach <= self.band:
             return extra
-        v = x.shape[0]
-        closest, normal = self.planes[0][:v], self.planes[1][:v]
-        distance = ((x - closest) * normal).sum(-1)
+        last, self._last_x = self._last_x, x.clone()
+        if last is None or self.planes is None:
+            return extra
+        distance, normal = self._vertex_planes(x)
         reach = (self.band + (x - last).norm(dim=-1)).clamp(max=self.reach)
         near = ((distance >= self.band) & (distance < reach)).to(x.dtype)
         blocks = (6.0 * self.stiffness * self.margin) * near[:, None, None] * (normal[:, :, None] * normal[:, None, :])
@@ -134,10 +140,8 @@ class Relaxation:
         the garment has to settle onto the body there. The scale is held constant in the gradient."""
         if self.planes is None:
             return move
-        v = x.shape[0]
-        closest, normal = self.planes[0][:v].to(x.dtype), self.planes[1][:v].to(x.dtype)
         with torch.no_grad():
-            distance = ((x.detach() - closest) * normal).sum(-1)
+            distance, normal = self._vertex_planes(x.detach())
             inward = -(move.detach() * normal).sum(-1)
             room = (distance - self.margin).clamp_min(0.0)
             limited = (distance >= self.band) & (inward > room)
