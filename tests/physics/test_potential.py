@@ -217,6 +217,32 @@ def test_local_terms_are_the_force_and_blocks_of_each_term(device, with_planes, 
         torch.testing.assert_close(floored.compliance.cpu(), torch.linalg.inv(k), rtol=1e-8, atol=1e-12)
 
 
+@pytest.mark.parametrize("device", DEVICES)
+def test_local_terms_with_vertex_bands_add_the_depth_eps_block_where_a_vertex_is_within_its_band(device):
+    """vertex_band: a vertex's own sample beyond the band but within its entry gets the block of
+    depth ε, 6 k_c ε n nᵀ, on top of the band's blocks; the force and the centroids' blocks are
+    those without; the same launch without vertex bands again gives the band's blocks alone."""
+    batch, cloth, x, planes, _ = _case()
+    on = cloth.to(device=device)
+    potential = GarmentPotential(on, stiffness=STIFFNESS, margin=MARGIN, band=BAND)
+    potential.hold(tuple(p.to(device) for p in planes))
+    plain = potential.local_terms(x.to(device))
+    plain_force, plain_contact = plain.force.cpu().clone(), plain.contact.cpu().clone()
+    gen = torch.Generator().manual_seed(5)
+    bands = BAND + 2e-2 * torch.rand(x.shape[0], generator=gen, dtype=torch.float64)
+    banded = potential.local_terms(x.to(device), vertex_band=bands.to(device))
+    v = x.shape[0]
+    distance = ((x - planes[0][:v]) * planes[1][:v]).sum(-1)
+    within = (distance >= BAND) & (distance < bands)
+    assert within.any() and (distance >= bands).any()
+    n = planes[1][:v]
+    added = 6.0 * STIFFNESS * MARGIN * within[:, None, None] * n[:, :, None] * n[:, None, :]
+    torch.testing.assert_close(banded.force.cpu(), plain_force, rtol=0, atol=0)
+    torch.testing.assert_close(banded.contact.cpu(), plain_contact + added, rtol=1e-12,
+                               atol=1e-12 * plain_contact.abs().amax())
+    torch.testing.assert_close(potential.local_terms(x.to(device)).contact.cpu(), plain_contact, rtol=0, atol=0)
+
+
 def test_local_terms_with_pair_blocks_are_the_same_terms_plus_the_majorants_pair_blocks():
     """Asked for a coarse space's pair layout, the local terms' launch also forms the strain
     majorant's pair blocks (`majorant.pair_blocks`), and the other terms are those without it;

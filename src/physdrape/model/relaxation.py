@@ -113,20 +113,16 @@ class Relaxation:
         closest, normal = (plane[:x.shape[0]].to(x.dtype) for plane in self.planes)
         return ((x - closest) * normal).sum(-1), normal
 
-    def _moving_blocks(self, x: Tensor, extra: Tensor | None) -> Tensor | None:
-        """`extra` (V, 3, 3) or None plus the depth-ε contact blocks of the vertices beyond the band
-        within band + their move since the last call of their plane (up to `reach`); x (V, 3)
-        float64 becomes the last call's positions."""
+    def _vertex_bands(self, x: Tensor) -> Tensor | None:
+        """The band of each vertex's own contact sample (V,) [m], float64: the band plus the
+        vertex's move since the last call, up to `reach` (None: the band alone: no reach beyond
+        it, the first call, or no planes); x (V, 3) float64 becomes the last call's positions."""
         if self.reach <= self.band:
-            return extra
+            return None
         last, self._last_x = self._last_x, x.clone()
         if last is None or self.planes is None:
-            return extra
-        distance, normal = self._vertex_planes(x)
-        reach = (self.band + (x - last).norm(dim=-1)).clamp(max=self.reach)
-        near = ((distance >= self.band) & (distance < reach)).to(x.dtype)
-        blocks = (6.0 * self.stiffness * self.margin) * near[:, None, None] * (normal[:, :, None] * normal[:, None, :])
-        return blocks if extra is None else extra + blocks
+            return None
+        return (self.band + (x - last).norm(dim=-1)).clamp(max=self.reach)
 
     def short_of_margin(self, move: Tensor, x: Tensor) -> Tensor:
         """The step `move` (V, 3) [m] from x with each vertex's move scaled down, where it would
@@ -180,8 +176,8 @@ class Relaxation:
           (P, 3, 3) float64 from the same launch, for the coarse factorisation (valid until the
           next call); else None.
         """
-        extra = self._moving_blocks(x.detach().to(torch.float64), self._extra)
-        terms = self._potential.local_terms(x, extra=extra,
+        bands = self._vertex_bands(x.detach().to(torch.float64))
+        terms = self._potential.local_terms(x, extra=self._extra, vertex_band=bands,
                                             rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
                                             tiny=float(torch.finfo(x.dtype).tiny), pairs=pairs)
         if torch.is_grad_enabled() and (x.requires_grad or (self.f_hat is not None and self.f_hat.requires_grad)):
@@ -190,5 +186,5 @@ class Relaxation:
             force = terms.force.to(x.dtype, copy=True)  # the terms are the potential's buffers: copied out
             ties = tie_forces(x.detach(), self.cloth)
             force = force if ties is None else force + ties
-        contact = None if self.planes is None and extra is None else terms.contact.to(x.dtype, copy=True)
+        contact = None if self.planes is None and self._extra is None else terms.contact.to(x.dtype, copy=True)
         return force, contact, terms.compliance.to(x.dtype, copy=True), terms.pairs

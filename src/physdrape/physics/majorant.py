@@ -124,13 +124,15 @@ def _kernels():
                            with_external: int, corners: wp.array2d(dtype=wp.int32), closest: wp.array(dtype=wp.vec3d),
                            normal: wp.array(dtype=wp.vec3d), with_planes: int, stiffness: wp.float64,
                            margin: wp.float64, band: wp.float64, face_lo: int, num_faces: int, hinge_lo: int,
-                           num_hinges: int, vert_lo: int, num_verts: int, pair: wp.array2d(dtype=wp.int32),
-                           with_pairs: int, force: wp.array2d(dtype=wp.vec3d), blocks: wp.array2d(dtype=wp.mat33d),
+                           num_hinges: int, vert_lo: int, num_verts: int, vertex_band: wp.array(dtype=wp.float64),
+                           with_vertex_band: int, pair: wp.array2d(dtype=wp.int32), with_pairs: int,
+                           force: wp.array2d(dtype=wp.vec3d), blocks: wp.array2d(dtype=wp.mat33d),
                            contact: wp.array2d(dtype=wp.mat33d), pairs: wp.array(dtype=wp.mat33d)):
         """One thread per face (its strain force and blocks, its centroid's contact), per hinge (its
         bending force and Gauss–Newton blocks) and per vertex (gravity, the external force, its own
         contact): the force −∇Φ (`force`), the strain and bending majorant's vertex blocks
-        (`blocks`) and the contact's blocks (`contact`), each summed into the vertices; with
+        (`blocks`) and the contact's blocks (`contact`), each summed into the vertices (with
+        `with_vertex_band`, a vertex's own sample takes its block's band from `vertex_band`); with
         `with_pairs`, also each face's 9 strain blocks summed into its corner pairs' (`pairs`, the
         pair of corners a, b of face f at pair[f, 3a + b]; block (b, a) = block (a, b)ᵀ)."""
         i = wp.tid()
@@ -192,7 +194,10 @@ def _kernels():
                 own = own + external[j]
             wp.atomic_add(force, 0, j, own)
             if with_planes != 0:
-                contact_terms(x, corners, closest, normal, stiffness, margin, band, j, force, contact)
+                own_band = band
+                if with_vertex_band != 0:
+                    own_band = vertex_band[j]
+                contact_terms(x, corners, closest, normal, stiffness, margin, own_band, j, force, contact)
 
     @wp.kernel(enable_backward=False)
     def compliance_kernel(blocks: wp.array(dtype=wp.mat33d), extra: wp.array(dtype=wp.mat33d), with_extra: int,
@@ -238,12 +243,13 @@ class LocalTerms:
 
 def record_local_terms(x: Tensor, cloth: Cloth, out: LocalTerms, part: tuple[int, ...], *, external: Tensor | None,
                        corners: Tensor | None, planes: tuple[Tensor, Tensor] | None, stiffness: float, margin: float,
-                       band: float, pair_of_corner: Tensor | None = None):
+                       band: float, pair_of_corner: Tensor | None = None, vertex_band: Tensor | None = None):
     """The launch of the local-terms kernel, recorded (`record_cmd`; None for an empty part): x (1,
     V, 3) float64, summed into `out` (zeroed by the caller), over the part's (face lo, hi, hinge
     lo, hi, vertex lo, hi) elements; external (V, 3) float64 or None; the contact samples' corner
     table (`contact.sample_corners`) and held planes (closest points, normals (V + F, 3) float64),
     or None; stiffness k_c [J/m³], margin ε [m] and the blocks' band [m] (`contact.plane_contact_blocks`);
+    vertex_band (V,) float64: the band of each vertex's own sample instead, or None;
     pair_of_corner (F, 9) int32: also the pair blocks into `out.pairs` (`pair_blocks`), or None.
     The caller keeps the tensors alive while the launch is replayed."""
     kernels = _kernels()
@@ -264,6 +270,7 @@ def record_local_terms(x: Tensor, cloth: Cloth, out: LocalTerms, part: tuple[int
               launch_arg(corners, wp.int32), launch_arg(closest, wp.vec3d), launch_arg(normal, wp.vec3d),
               int(planes is not None), float(stiffness), float(margin), float(band), face_lo, face_hi - face_lo,
               hinge_lo, hinge_hi - hinge_lo, vert_lo, cloth.num_verts,
+              launch_arg(idle[0] if vertex_band is None else vertex_band, wp.float64), int(vertex_band is not None),
               launch_arg(idle.to(torch.int32) if pair_of_corner is None else pair_of_corner, wp.int32),
               int(pair_of_corner is not None)]
     if pair_of_corner is not None and (out.pairs is None or pair_of_corner.shape != (cloth.faces.shape[0], 9)):

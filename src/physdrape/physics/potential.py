@@ -128,8 +128,10 @@ class GarmentPotential:
         self._terms = zero_local_terms(num_verts, device)  # the buffers `local_terms` sums into
         self._pair_terms: tuple[Tensor, LocalTerms] | None = None  # a pair layout and the same with its pairs
         self._inverse = torch.zeros(num_verts, 3, 3, dtype=torch.float64, device=device)  # and inverts into
-        # recorded launches: Φ's per thread count, the local terms' per ("local", thread count) and
-        # with a pair layout's blocks per ("pairs", thread count), the compliance's per ("compliance", rel, tiny)
+        self._vertex_band: Tensor | None = None  # the vertices' own bands `local_terms` reads (made at first use)
+        # recorded launches: Φ's per thread count, the local terms' per ("local", thread count, banded) and
+        # with a pair layout's blocks per ("pairs", thread count, banded) (banded: with the vertices' own
+        # bands), the compliance's per ("compliance", rel, tiny)
         self._launches: dict = {}
 
     def drop_external(self) -> None:
@@ -159,16 +161,18 @@ class GarmentPotential:
             held.copy_(plane.detach())
 
     def local_terms(self, x: Tensor, *, extra: Tensor | None = None, rel: float | None = None,
-                    tiny: float = 0.0, pairs: tuple[Tensor, int] | None = None) -> LocalTerms:
+                    tiny: float = 0.0, pairs: tuple[Tensor, int] | None = None,
+                    vertex_band: Tensor | None = None) -> LocalTerms:
         """The force −∇Φ and the stiffness blocks at positions x (V, 3) [m] on the held planes, in
         one launch (`physics.majorant.LocalTerms`, float64): the force of the strain, bending,
         gravity, external and contact terms (the ties' are the caller's: `forces.tie_forces`),
         the majorant's vertex blocks and the contact's blocks, samples within `band` of their
-        plane taken at depth ≥ ε (`contact.plane_contact_blocks`), plus `extra` (V, 3, 3) [N/m]
-        if given; with `rel`, also the inverses of the vertices' blocks and contact blocks, floored
-        by rel and tiny (`physics.majorant.compliance`), in a second launch; with `pairs`, the
-        pair layout (pair_of_corner (F, 9) int32, number of pairs) of `physics.majorant.pair_blocks`,
-        also the strain majorant's pair blocks, from the same faces' state. Not differentiated.
+        plane taken at depth ≥ ε (`contact.plane_contact_blocks`; with `vertex_band` (V,) [m], a
+        vertex's own sample within its entry instead), plus `extra` (V, 3, 3) [N/m] if given;
+        with `rel`, also the inverses of the vertices' blocks and contact blocks, floored by rel
+        and tiny (`physics.majorant.compliance`), in a second launch; with `pairs`, the pair layout
+        (pair_of_corner (F, 9) int32, number of pairs) of `physics.majorant.pair_blocks`, also the
+        strain majorant's pair blocks, from the same faces' state. Not differentiated.
         The terms are this potential's buffers, valid until its next `local_terms` call."""
         if tuple(x.shape) != (self.cloth.num_verts, 3):
             raise ValueError(f"x must be the cloth's packed positions ({self.cloth.num_verts}, 3), got {tuple(x.shape)}")
@@ -185,15 +189,20 @@ class GarmentPotential:
             self._x[0].copy_(x.detach())
             for buffer in (terms.force, terms.blocks, terms.contact) + (() if pairs is None else (terms.pairs,)):
                 buffer.zero_()
+            if vertex_band is not None:
+                if self._vertex_band is None:
+                    self._vertex_band = torch.zeros(self.cloth.num_verts, dtype=torch.float64, device=x.device)
+                self._vertex_band.copy_(vertex_band.detach())
             with torch_stream(x.device):
-                key = ("local" if pairs is None else "pairs", threads)
+                key = ("local" if pairs is None else "pairs", threads, vertex_band is not None)
                 launches = self._launches.get(key)
                 if launches is None:
                     launches = self._launches[key] = [
                         record_local_terms(self._x, self.cloth, terms, part, external=self._external,
                                            corners=self._corners, planes=self._planes, stiffness=self.stiffness,
                                            margin=self.margin, band=self.band,
-                                           pair_of_corner=None if pairs is None else pairs[0])
+                                           pair_of_corner=None if pairs is None else pairs[0],
+                                           vertex_band=None if vertex_band is None else self._vertex_band)
                         for part in _garment_parts(self.cloth, threads)]
                 run_parts(lambda k: launches[k].launch(), [(k,) for k in range(len(launches)) if launches[k]],
                           "elements")
