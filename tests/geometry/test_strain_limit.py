@@ -40,6 +40,26 @@ def test_within_bound_is_the_identity_and_batches_match(sheet):
     assert torch.allclose(out[1], limit_edge_stretch(pulled, e, rest, max_stretch=1.5), atol=1e-12)
 
 
+def test_min_stretch_pushes_a_compressed_patch_apart_and_leaves_the_rest(sheet):
+    """min_stretch: edges shorter than min_stretch × rest are pushed apart toward it (within 1 %
+    of it), edges between the bounds far from them keep their lengths; without it, compression
+    is left as it is."""
+    v, e, rest = sheet
+    x = v.clone()
+    near = (v - v[55]).norm(dim=-1) < 0.03
+    x[near] = v[55] + 0.7 * (v[near] - v[55])  # a patch shrunk to 0.7 of its size
+    length = (x[e[:, 1]] - x[e[:, 0]]).norm(dim=-1)
+    assert (length / rest).min() < 0.75
+    assert torch.equal(limit_edge_stretch(x, e, rest, max_stretch=1.5), x)
+    y = limit_edge_stretch(x, e, rest, max_stretch=1.5, min_stretch=0.9)
+    ratio = (y[e[:, 1]] - y[e[:, 0]]).norm(dim=-1) / rest
+    assert ratio.min() > 0.9 * 0.99 and ratio.max() < 1.5
+    far = (v - v[55]).norm(dim=-1) > 0.12
+    assert torch.equal(y[far], x[far])
+    with pytest.raises(ValueError, match="min_stretch"):
+        limit_edge_stretch(x, e, rest, max_stretch=1.5, min_stretch=1.1)
+
+
 def test_rejects_bad_arguments(sheet):
     v, e, rest = sheet
     with pytest.raises(ValueError, match="max_stretch"):

@@ -125,6 +125,8 @@ class SkinningTransfer:
             toward after skinning, for `limit_sweeps` sweeps (see
             `physdrape.geometry.strain_limit`; where the body holds the garment out, some edges
             stay above it); None leaves the skinned positions as they are.
+        min_stretch: bound on edge length / rest length that X_init's compressed edges are
+            pushed back toward in the same sweeps (< 1), or None (compression left as skinned).
         limit_sweeps: strain-limiting sweeps (momentum-accelerated Jacobi edge projection).
         limit_momentum: heavy-ball momentum of those sweeps (0 = plain Jacobi).
         contact_margin: during strain limiting, vertices are held at least this far outside the
@@ -145,6 +147,7 @@ class SkinningTransfer:
     template_verts: Tensor
     edges: Tensor
     max_stretch: float | None = 1.02
+    min_stretch: float | None = None
     limit_sweeps: int = 60
     limit_momentum: float = 0.9
     contact_margin: float | None = DEFAULT_MARGIN
@@ -329,7 +332,7 @@ class SkinningTransfer:
         # limit_sweeps and can leave a few edges it was still pulling on above the local bound.
         x = limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=LOCAL_STRETCH_BOUND)
         contact = {} if body is None or self.contact_margin is None else {"body": body, "margin": self.contact_margin}
-        x = limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=self.max_stretch,
+        x = limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=self.max_stretch, min_stretch=self.min_stretch,
                                iterations=self.limit_sweeps, momentum=self.limit_momentum, **contact)
         return limit_edge_stretch(x, self.edges, rest_lengths, max_stretch=LOCAL_STRETCH_BOUND)
 

@@ -41,6 +41,7 @@ def limit_edge_stretch(
     rest_lengths: Tensor,
     *,
     max_stretch: float = 1.5,
+    min_stretch: float | None = None,
     iterations: int = 100,
     relaxation: float = 1.5,
     body: BodySurface | None = None,
@@ -56,6 +57,9 @@ def limit_edge_stretch(
         edges: undirected edges, shape (E, 2) int64.
         rest_lengths: their rest lengths [m], shape (E,) or broadcastable (..., E), > 0.
         max_stretch: the bound on length / rest length (> 1).
+        min_stretch: a lower bound on length / rest length (< 1), or None: edges shorter than it
+            are pushed apart toward it the same way (compression that skinning leaves, where the
+            skin folds under a bent joint), within the same sweeps and stopping rule.
         iterations: Jacobi sweeps at most (stops early once every edge is within 1 % of the bound
             and every vertex above its floor; each mesh of a batch on its own, as it would alone).
         relaxation: over-relaxation of the averaged corrections (1 = plain Jacobi; < 2).
@@ -82,6 +86,8 @@ def limit_edge_stretch(
     """
     if not max_stretch > 1.0:
         raise ValueError(f"max_stretch must be > 1, got {max_stretch}")
+    if min_stretch is not None and not 0.0 < min_stretch < 1.0:
+        raise ValueError(f"min_stretch must be in (0, 1) or None, got {min_stretch}")
     if not 0.0 < relaxation < 2.0:
         raise ValueError(f"relaxation must be in (0, 2), got {relaxation}")
     if edges.ndim != 2 or edges.shape[1] != 2 or rest_lengths.shape[-1:] != edges.shape[:1]:
@@ -101,6 +107,7 @@ def limit_edge_stretch(
     offsets = (torch.arange(copies, device=x.device) * num_verts)[:, None]
     ends = torch.stack([(edges[:, 0][None] + offsets).reshape(-1), (edges[:, 1][None] + offsets).reshape(-1)], 1)
     bound = (max_stretch * rest_lengths.to(torch.float64)).expand(*shape[:-2], edges.shape[0]).reshape(-1).contiguous()
+    lower = bound * (min_stretch / max_stretch) if min_stretch is not None else bound[:1]
     wp, edge_kernel, vertex_kernel, depth_kernel = _kernels()
     device = wp.device_from_torch(x.device)
     buffers = [torch.zeros_like(flat) for _ in range(3)]  # next positions, shift, velocity
@@ -118,6 +125,7 @@ def limit_edge_stretch(
           ("closest", planes[0]), ("normal", planes[1]), ("floor", planes[2]))}
     w_ends = launch_arg(ends.to(torch.int32).contiguous(), wp.int32)
     w_bound, w_count = launch_arg(bound, wp.float64), launch_arg(count, wp.float64)
+    w_lower = launch_arg(lower, wp.float64)
     w_stats, w_active = launch_arg(stats, wp.float64), launch_arg(active, wp.int32)
     w_edge_copy, w_vertex_copy = launch_arg(copy_of_edge, wp.int32), launch_arg(copy_of_vertex, wp.int32)
     held, found, previous, live = False, None, [None] * copies, [True] * copies
@@ -127,7 +135,8 @@ def limit_edge_stretch(
         # work on the CPU and holds the GIL that parallel X_inits share; the depth check and the
         # sweep on held planes only with a body
         edge = wp.launch(edge_kernel, dim=ends.shape[0], device=device, record_cmd=True,
-                         inputs=[w["x"], w_ends, w_bound, w_edge_copy, w_active, w["shift"], w_count, w_stats])
+                         inputs=[w["x"], w_ends, w_bound, w_lower, int(min_stretch is not None), w_edge_copy,
+                                 w_active, w["shift"], w_count, w_stats])
         depth = None if body is None else wp.launch(
             depth_kernel, dim=flat.shape[0], device=device, record_cmd=True,
             inputs=[w["x"], w["closest"], w["normal"], w["floor"], 1e-2 * margin, w_vertex_copy, w_active, w_stats])
@@ -190,7 +199,8 @@ def _kernels():
 
     edge: each edge longer than its bound moves both ends half the excess along it (atomically
     summed per vertex, with the count of such edges); adds the excess to its copy's stats[c, 0]
-    and flags stats[c, 1] when it is over 1 % of the bound. vertex: the averaged shift times the
+    and flags stats[c, 1] when it is over 1 % of the bound; with a lower bound, an edge shorter
+    than it likewise moves its ends half the deficit apart. vertex: the averaged shift times the
     relaxation, plus momentum times the last move; with held planes, back up to the floor along
     the plane's normal; the shift and count are cleared for the next sweep. depth: flags
     stats[c, 2] when a vertex is more than `tol` below its floor. Each skips the elements of the
@@ -201,7 +211,8 @@ def _kernels():
 
     @wp.kernel(enable_backward=False)
     def edge_kernel(x: wp.array(dtype=wp.vec3d), ends: wp.array2d(dtype=wp.int32), bound: wp.array(dtype=wp.float64),
-                    copy: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32), shift: wp.array(dtype=wp.vec3d),
+                    lower: wp.array(dtype=wp.float64), with_lower: int, copy: wp.array(dtype=wp.int32),
+                    active: wp.array(dtype=wp.int32), shift: wp.array(dtype=wp.vec3d),
                     count: wp.array(dtype=wp.float64), stats: wp.array2d(dtype=wp.float64)):
         e = wp.tid()
         c = copy[e]
@@ -212,6 +223,11 @@ def _kernels():
         d = x[j] - x[i]
         length = wp.length(d)
         excess = length - bound[e]
+        limit = bound[e]
+        if with_lower != 0 and excess <= f64(0.0):
+            excess = lower[e] - length  # a deficit: the ends move apart
+            limit = lower[e]
+            d = -d
         if excess > f64(0.0):
             half = (f64(0.5) * excess / wp.max(length, f64(1e-12))) * d
             wp.atomic_add(shift, i, half)
@@ -219,7 +235,7 @@ def _kernels():
             wp.atomic_add(count, i, f64(1.0))
             wp.atomic_add(count, j, f64(1.0))
             wp.atomic_add(stats, c, 0, excess)
-            if excess > f64(1e-2) * bound[e]:
+            if excess > f64(1e-2) * limit:
                 stats[c, 1] = f64(1.0)
 
     @wp.kernel(enable_backward=False)
