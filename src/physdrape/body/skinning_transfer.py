@@ -147,7 +147,7 @@ class SkinningTransfer:
     template_verts: Tensor
     edges: Tensor
     max_stretch: float | None = 1.02
-    min_stretch: float | None = None
+    min_stretch: float | None = 0.9
     limit_sweeps: int = 60
     limit_momentum: float = 0.9
     contact_margin: float | None = DEFAULT_MARGIN
