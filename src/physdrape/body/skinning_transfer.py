@@ -136,10 +136,18 @@ class SkinningTransfer:
     garment, so on a taller or wider body than the canonical one the garment is stretched
     everywhere, while the static equilibrium lets it ride up and hug the body instead, barely
     stretched. Pulling the edges back toward 1.02 x rest with the body held out brings X_init
-    close to that (the pull acts on stretched edges only: edges that skinning compressed stay
-    as they are): the model and its solver start from a nearly unstretched garment that is
+    close to that (the pull acts on stretched edges only): the model and its solver start from a nearly unstretched garment that is
     still outside the body (the "X_init" and "Skinned" rows of `results/eval.md` compare the
     two starts).
+
+    Why a lower bound (0.9): skinning also compresses the garment where the skin folds (under a
+    bent elbow, at the armpit, over the belly of a heavier body), and that compression is much
+    of X_init's strain energy, which the network and the solver's first steps must otherwise
+    undo. Pushing edges shorter than 0.9 x rest apart in the same sweeps (with the body
+    held out) takes X_init's E_total on the held-out set from 1.607 to 1.438 times the teacher
+    drapes', the network's drape (a network trained without the bound) from 1.219 to 1.194 and
+    the solver alone's at T = 3 from 1.131 to 1.087; 0.85 and 0.95 do less for the network
+    (`results/x_init_bounds_skinned_model.md`, `bench/x_init_bounds.py`).
     """
 
     weights: Tensor
