@@ -325,10 +325,11 @@ class SkinningTransfer:
         return self._blend(transforms[..., :3, :].reshape(batch, num_body, 12)).reshape(batch, self.num_verts, 3, 4)
 
     def limit_stretch(self, x: Tensor, garment_verts: Tensor | None = None, *, body: BodySurface | None = None) -> Tensor:
-        """Bound the edge stretch of garment positions x (..., V, 3) by `max_stretch` relative to
-        the template (the garment's rest state in the physics), holding the vertices out of
-        `body` (one body per leading index) when it is given and `contact_margin` is set;
-        identity when `max_stretch` is None."""
+        """Bound the edge stretch of garment positions x (..., V, 3) by `max_stretch` (and, in
+        the stage with the body, their compression by `min_stretch`) relative to the template
+        (the garment's rest state in the physics), holding the vertices out of `body` (one body
+        per leading index) when it is given and `contact_margin` is set; identity when
+        `max_stretch` is None."""
         if self.max_stretch is None:
             return x
         x_temp = (self.template_verts if garment_verts is None else garment_verts).to(x.dtype)
