@@ -136,10 +136,18 @@ class SkinningTransfer:
     garment, so on a taller or wider body than the canonical one the garment is stretched
     everywhere, while the static equilibrium lets it ride up and hug the body instead, barely
     stretched. Pulling the edges back toward 1.02 x rest with the body held out brings X_init
-    close to that (the pull acts on stretched edges only: edges that skinning compressed stay
-    as they are): the model and its solver start from a nearly unstretched garment that is
+    close to that (the pull acts on stretched edges only): the model and its solver start from a nearly unstretched garment that is
     still outside the body (the "X_init" and "Skinned" rows of `results/eval.md` compare the
     two starts).
+
+    Why a lower bound (0.9): skinning also compresses the garment where the skin folds (under a
+    bent elbow, at the armpit, over the belly of a heavier body), and that compression is much
+    of X_init's strain energy, which the network and the solver's first steps must otherwise
+    undo. Pushing edges shorter than 0.9 x rest apart in the same sweeps (with the body
+    held out) takes X_init's E_total on the held-out set from 1.607 to 1.438 times the teacher
+    drapes', the network's drape (a network trained without the bound) from 1.219 to 1.194 and
+    the solver alone's at T = 3 from 1.131 to 1.087; 0.85 and 0.95 do less for the network
+    (`results/x_init_bounds_skinned_model.md`, `bench/x_init_bounds.py`).
     """
 
     weights: Tensor
@@ -147,7 +155,7 @@ class SkinningTransfer:
     template_verts: Tensor
     edges: Tensor
     max_stretch: float | None = 1.02
-    min_stretch: float | None = None
+    min_stretch: float | None = 0.9
     limit_sweeps: int = 60
     limit_momentum: float = 0.9
     contact_margin: float | None = DEFAULT_MARGIN
@@ -317,10 +325,11 @@ class SkinningTransfer:
         return self._blend(transforms[..., :3, :].reshape(batch, num_body, 12)).reshape(batch, self.num_verts, 3, 4)
 
     def limit_stretch(self, x: Tensor, garment_verts: Tensor | None = None, *, body: BodySurface | None = None) -> Tensor:
-        """Bound the edge stretch of garment positions x (..., V, 3) by `max_stretch` relative to
-        the template (the garment's rest state in the physics), holding the vertices out of
-        `body` (one body per leading index) when it is given and `contact_margin` is set;
-        identity when `max_stretch` is None."""
+        """Bound the edge stretch of garment positions x (..., V, 3) by `max_stretch` (and, in
+        the stage with the body, their compression by `min_stretch`) relative to the template
+        (the garment's rest state in the physics), holding the vertices out of `body` (one body
+        per leading index) when it is given and `contact_margin` is set; identity when
+        `max_stretch` is None."""
         if self.max_stretch is None:
             return x
         x_temp = (self.template_verts if garment_verts is None else garment_verts).to(x.dtype)

@@ -44,6 +44,7 @@ from safetensors.torch import load_file, save
 
 from physdrape.atomic import write_bytes, write_text
 from physdrape.body.pool import BodyPool
+from physdrape.body.skinning_transfer import SkinningTransfer
 from physdrape.model.config import ModelConfig
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
 from physdrape.physics.energy import total_energy
@@ -91,12 +92,21 @@ def teacher_solver(model: ModelConfig) -> StretchingSolver:
                             **TEACHER_SETTINGS)
 
 
+#: X_init's strain-limiting settings (`SkinningTransfer`'s defaults, what `DrapePipeline` skins
+#: with) that a cache's X_init were made with; a manifest without them was written with
+#: `SKINNED_BEFORE_MIN_STRETCH` (compression left as skinned).
+X_INIT_SETTINGS = {name: getattr(SkinningTransfer, name)
+                   for name in ("max_stretch", "min_stretch", "limit_sweeps", "limit_momentum", "contact_margin")}
+SKINNED_BEFORE_MIN_STRETCH = {**X_INIT_SETTINGS, "min_stretch": None}
+
+
 def _definition(data, model: ModelConfig) -> dict:
     """Everything the cached instances depend on (a cache made with other values is refused)."""
     keys = ("split_dir", "split_seed", "subset", "max_garments", "body_pool_size", "body_seed", "materials", "dtype",
             "validation_garments", "teacher_steps")
     return {"data": {k: getattr(data, k) for k in keys},
-            "contact": {"stiffness": model.contact_stiffness, "margin": model.margin}, "teacher": TEACHER_SETTINGS}
+            "contact": {"stiffness": model.contact_stiffness, "margin": model.margin}, "teacher": TEACHER_SETTINGS,
+            "x_init": X_INIT_SETTINGS}
 
 
 class InstanceCache:
@@ -118,9 +128,10 @@ class InstanceCache:
             except (OSError, json.JSONDecodeError) as exc:
                 raise InstanceCacheError(f"{path} cannot be read ({exc}); delete the folder {self.directory} and "
                                          "run again to rebuild it") from exc
-            mine = {k: self.manifest[k] for k in ("format", "data", "contact", "teacher")}
+            mine = {k: self.manifest[k] for k in ("format", "data", "contact", "teacher", "x_init")}
             theirs = {k: found.get(k) for k in ("format", "data", "contact")} | {
-                "teacher": found.get("teacher", TEACHER_SETTINGS)}
+                "teacher": found.get("teacher", TEACHER_SETTINGS),
+                "x_init": found.get("x_init", SKINNED_BEFORE_MIN_STRETCH)}
             if mine != theirs:
                 raise InstanceCacheError(
                     f"the instance cache {self.directory} was made with other settings ({theirs}) than this run "
