@@ -22,7 +22,6 @@ import argparse
 import os
 import shlex
 import sys
-from dataclasses import replace
 
 import torch
 from held_out import energies, full_model
@@ -30,7 +29,7 @@ from report import source_lines, write_report
 
 from physdrape.config_io import load_config
 from physdrape.physics import Material
-from physdrape.pipeline import Job
+from physdrape.pipeline import DrapePipeline, Job
 from physdrape.provenance import provenance
 from physdrape.train.data import DrapeSource
 from physdrape.train.trainer import TrainConfig
@@ -42,16 +41,10 @@ def parse_bound(text: str) -> float | None:
 
 def remade_batches(source: DrapeSource, min_stretch: float | None) -> list:
     """The validation instances' drape inputs with X_init made afresh under `min_stretch`."""
-    pipeline = source.pipeline
+    pipeline = DrapePipeline(source.body, dtype=source.dtype, x_init_limits={"min_stretch": min_stretch})
     instances = source.cache.part("val")[:source.config.validation_count]
-    out = []
-    for inst in instances:
-        template = source.templates[inst.garment]
-        # the bench's override of the transfer's bound (the product takes SkinningTransfer's default)
-        pipeline._transfers[template.key] = replace(pipeline.transfer(template), min_stretch=min_stretch)
-        job = Job(template, 0, Material(**inst.material))
-        out.append(pipeline.build([job], source.validation_pool.state(inst.body)))
-    return out
+    return [pipeline.build([Job(source.templates[inst.garment], 0, Material(**inst.material))],
+                           source.validation_pool.state(inst.body)) for inst in instances]
 
 
 def main() -> None:

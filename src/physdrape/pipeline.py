@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from physdrape.body.model import BodyState
-from physdrape.body.skinning_transfer import BodySearch, SkinningTransfer
+from physdrape.body.skinning_transfer import LIMIT_FIELDS, BodySearch, SkinningTransfer
 from physdrape.garments import layering
 from physdrape.garments.closures import panel_overlaps
 from physdrape.garments.pieces import GarmentParts, garment_parts, waistband_band
@@ -176,16 +176,20 @@ class DrapePipeline:
             `AnnyBody` of one rig or an `SMPLBody`.
         dtype: of the garments, bodies and X_init handed to the model.
         device: where the model's input is built (see the module docstring).
-        max_stretch: the transfer's bound on X_init's edge stretch (see `SkinningTransfer`);
-            None keeps the transfer's default.
+        x_init_limits: X_init's strain limiting other than the transfer's defaults: fields of
+            `SkinningTransfer` named in `LIMIT_FIELDS` (e.g. ``{"min_stretch": None}``: compressed
+            edges left as skinned); None keeps the defaults.
     """
 
     def __init__(self, body, *, dtype: torch.dtype = DEFAULT_DTYPE, device: torch.device | str = "cpu",
-                 max_stretch: float | None = None) -> None:
+                 x_init_limits: dict | None = None) -> None:
+        unknown = sorted(set(x_init_limits or ()) - set(LIMIT_FIELDS))
+        if unknown:
+            raise ValueError(f"x_init_limits: unknown field(s) {unknown}; choose among {list(LIMIT_FIELDS)}")
         self.body = body
         self.dtype = dtype
         self.device = torch.device(device)
-        self.max_stretch = max_stretch
+        self.x_init_limits = dict(x_init_limits or {})
         self._transfers: dict[str, SkinningTransfer] = {}
         self._body_search: BodySearch | None = None  # what every template's fit searches on the body
         self._device_transfers: dict[str, SkinningTransfer] = {}
@@ -204,9 +208,7 @@ class DrapePipeline:
             transfer = SkinningTransfer.fit(torch.from_numpy(search.verts), search.faces,
                                             torch.from_numpy(template.verts), torch.from_numpy(template.faces),
                                             search=search)
-            if self.max_stretch is not None:
-                transfer = replace(transfer, max_stretch=self.max_stretch)
-            self._transfers[template.key] = transfer
+            self._transfers[template.key] = replace(transfer, **self.x_init_limits)
         return self._transfers[template.key]
 
     def _transfer_here(self, template: Template) -> SkinningTransfer:

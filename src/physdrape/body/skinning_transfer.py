@@ -81,6 +81,11 @@ def _garment_smoother(faces: np.ndarray, num_verts: int) -> sp.csr_matrix:
     return sp.diags(1.0 / deg) @ adj
 
 
+#: The fields of `SkinningTransfer` that set X_init's strain limiting (what a pipeline may
+#: override, `pipeline.DrapePipeline`, and what an instance cache records, `train.instances`).
+LIMIT_FIELDS = ("max_stretch", "min_stretch", "limit_sweeps", "limit_momentum", "contact_margin")
+
+
 #: Bound of the first, local strain-limiting stage (plain Jacobi, no contact): the skin itself
 #: stretches severalfold at the armpit under raised arms, and momentum sweeps handle such spikes
 #: badly.
@@ -136,9 +141,9 @@ class SkinningTransfer:
     garment, so on a taller or wider body than the canonical one the garment is stretched
     everywhere, while the static equilibrium lets it ride up and hug the body instead, barely
     stretched. Pulling the edges back toward 1.02 x rest with the body held out brings X_init
-    close to that (the pull acts on stretched edges only): the model and its solver start from a nearly unstretched garment that is
-    still outside the body (the "X_init" and "Skinned" rows of `results/eval.md` compare the
-    two starts).
+    close to that (the pull acts on stretched edges only): the model and its solver start from
+    a nearly unstretched garment that is still outside the body (the "X_init" and "Skinned"
+    rows of `results/eval.md` compare the two starts).
 
     Why a lower bound (0.9): skinning also compresses the garment where the skin folds (under a
     bent elbow, at the armpit, over the belly of a heavier body), and that compression is much

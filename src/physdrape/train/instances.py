@@ -44,7 +44,7 @@ from safetensors.torch import load_file, save
 
 from physdrape.atomic import write_bytes, write_text
 from physdrape.body.pool import BodyPool
-from physdrape.body.skinning_transfer import SkinningTransfer
+from physdrape.body.skinning_transfer import LIMIT_FIELDS, SkinningTransfer
 from physdrape.model.config import ModelConfig
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
 from physdrape.physics.energy import total_energy
@@ -95,8 +95,7 @@ def teacher_solver(model: ModelConfig) -> StretchingSolver:
 #: X_init's strain-limiting settings (`SkinningTransfer`'s defaults, what `DrapePipeline` skins
 #: with) that a cache's X_init were made with; a manifest without them was written with
 #: `SKINNED_BEFORE_MIN_STRETCH` (compression left as skinned).
-X_INIT_SETTINGS = {name: getattr(SkinningTransfer, name)
-                   for name in ("max_stretch", "min_stretch", "limit_sweeps", "limit_momentum", "contact_margin")}
+X_INIT_SETTINGS = {name: getattr(SkinningTransfer, name) for name in LIMIT_FIELDS}
 SKINNED_BEFORE_MIN_STRETCH = {**X_INIT_SETTINGS, "min_stretch": None}
 
 
