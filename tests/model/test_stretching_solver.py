@@ -126,33 +126,6 @@ def test_packed_batch_equals_garments_alone(kind):
         torch.testing.assert_close(out, alone, rtol=1e-9, atol=1e-12)
 
 
-def test_the_step_scale_decays_over_decay_steps_then_holds():
-    """Explicit steps scaled by η γ^min(t, decay_steps), checked against the steps taken by hand;
-    the two-level solver's steps equal the paper's schedule (None) up to step decay_steps and
-    differ after it."""
-    from physdrape.physics.forces import internal_forces
-
-    batch, x0 = _case()
-    eta, gamma = 2e-4, 0.5
-    solver = _solver("explicit", eta=eta, gamma=gamma, max_step=0.0, decay_steps=2)
-    with torch.no_grad():
-        x = solver(x0, batch.cloth, f_hat=None, steps=5)
-        eta, gamma = float(solver.eta), float(solver.gamma)  # as the parameters hold them
-        by_hand = x0
-        for t in range(5):
-            by_hand = by_hand + eta * gamma ** min(t, 2) * internal_forces(by_hand, batch.cloth)
-    torch.testing.assert_close(x, by_hand, rtol=1e-12, atol=1e-15)
-    bodies = dict(bodies=batch.bodies, body_index=batch.body_index)
-    paper, held = (_solver(eta=1.0, gamma=0.5, max_step=0.01, decay_steps=d) for d in (None, 3))
-    with torch.no_grad():
-        for steps, same in ((4, True), (8, False)):
-            a = paper(x0, batch.cloth, f_hat=None, steps=steps, **bodies)
-            b = held(x0, batch.cloth, f_hat=None, steps=steps, **bodies)
-            assert torch.equal(a, b) is same
-    with pytest.raises(ValueError, match="decay_steps"):
-        _solver(eta=1.0, decay_steps=-1)
-
-
 def test_solver_kind_is_checked():
     with pytest.raises(ValueError, match="is not a valid SolverKind"):
         _solver("jacobi", eta=1.0)

@@ -91,10 +91,7 @@ class ModelConfig:
     1.021 at T = 15 (`results/solver_settings_eval_contact_band.md`; 6 mm there: 1.052, 1.013,
     the solver alone 1.128, 1.019).
     eta / gamma: initial solver step scale (two_level: dimensionless, 1 = a full preconditioned
-    step; explicit: a compliance [m/N]) and decay, the scale of step t η γ^min(t, decay_steps):
-    the decay covers the steps a model drapes with by default (`eval_steps`) and then holds, so
-    that a longer solve (`Draper(steps=...)`) keeps converging where the paper's schedule (None:
-    γ^t at every step) stalls (`results/long_solves.md`); max_step: the solver's per-vertex step clip [m]
+    step; explicit: a compliance [m/N]) and decay; max_step: the solver's per-vertex step clip [m]
     (stability guard, see `StretchingSolver`; 2 cm lowers E_total at every T against 1 cm,
     `results/solver_settings_max_step.md`). delta: initial handler push factor.
     margin: contact margin ε [m] of the handler, the solver's contact term and the training loss.
@@ -149,7 +146,6 @@ class ModelConfig:
     solver: SolverKind = SolverKind.TWO_LEVEL
     eta: float = 1.0
     gamma: float = 0.98
-    decay_steps: int | None = 15
     max_step: float = 2e-2
     requery_every: int = 3
     refactor_every: int = 3
@@ -196,9 +192,6 @@ class ModelConfig:
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")
-        k = self.decay_steps
-        if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
-            raise ValueError(f"ModelConfig.decay_steps must be an integer ≥ 0 (null: every solver step), got {k!r}")
         k = self.f_hat_steps
         if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
             raise ValueError(f"ModelConfig.f_hat_steps must be an integer ≥ 0 (null: every solver step), got {k!r}")

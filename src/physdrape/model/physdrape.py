@@ -99,8 +99,7 @@ class PhysDrape(nn.Module):
             levels=config.levels, zero_init_output=config.zero_init_output,
             look_back_in=STEP_FEATURES, look_back_blocks=config.look_back_blocks,
         )
-        self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma,
-                                       decay_steps=config.decay_steps, max_step=config.max_step,
+        self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
                                        margin=config.margin, contact_stiffness=config.contact_stiffness,
                                        requery_every=config.requery_every, refactor_every=config.refactor_every,
                                        refactor_first=config.refactor_first, follow_planes=config.follow_planes,

@@ -71,11 +71,7 @@ class StretchingSolver(nn.Module):
     Args:
         kind: `SolverKind`.
         eta: initial η ([m/N] explicit; dimensionless two_level, 1 = a full preconditioned step).
-        gamma: initial decay γ: step t's scale is η γ^t.
-        decay_steps: the steps over which the scale decays (then it holds at η γ^decay_steps);
-            None: every step (the paper's schedule). A line search takes at most 4 times the scale
-            (`_line_search`), so a long solve on the paper's schedule stalls: at t = 120, 0.98^t
-            is 0.09.
+        gamma: initial decay γ.
         max_step: longest move of one vertex in one step [m] (0 disables the guard).
         margin, contact_stiffness: ε [m] and k_c [J/m³] of the two-level solver's contact term.
         requery_every: two-level steps between body queries (the planes are held in between).
@@ -122,7 +118,7 @@ class StretchingSolver(nn.Module):
                  eval_requery_every: int | None = None, eval_follow_planes: bool | None = None,
                  f_hat_steps: int | None = None, follow_min_move: float = 0.0, inner_steps: int = 0,
                  inner_iterations: int = 1, eval_inner_iterations: int | None = None,
-                 eval_contact_band: float | None = None, decay_steps: int | None = None) -> None:
+                 eval_contact_band: float | None = None) -> None:
         super().__init__()
         if not eta > 0 or not 0 < gamma < 1:
             raise ValueError(f"need eta > 0 and 0 < gamma < 1, got eta={eta}, gamma={gamma}")
@@ -140,8 +136,6 @@ class StretchingSolver(nn.Module):
                              f"{inner_steps}, {inner_iterations}, {eval_inner_iterations}")
         if f_hat_steps is not None and f_hat_steps < 0:
             raise ValueError(f"f_hat_steps must be ≥ 0 (None: every step), got {f_hat_steps}")
-        if decay_steps is not None and decay_steps < 0:
-            raise ValueError(f"decay_steps must be ≥ 0 (None: every step), got {decay_steps}")
         eval_contact_band = contact_band if eval_contact_band is None else eval_contact_band
         if coarse_levels < 1 or coarse_smoothing < 0 or min(contact_band, eval_contact_band) < 0 or follow_min_move < 0:
             raise ValueError(f"need coarse_levels ≥ 1, coarse_smoothing ≥ 0, contact_band and eval_contact_band "
@@ -156,7 +150,6 @@ class StretchingSolver(nn.Module):
         self.eval_requery_every = eval_requery_every
         self.eval_follow_planes = follow_planes if eval_follow_planes is None else eval_follow_planes
         self.f_hat_steps = f_hat_steps
-        self.decay_steps = decay_steps
         self.coarse_levels, self.coarse_smoothing = coarse_levels, coarse_smoothing
         self.contact_band, self.eval_contact_band = contact_band, eval_contact_band
         self.follow_min_move = follow_min_move
@@ -193,7 +186,7 @@ class StretchingSolver(nn.Module):
             if f_hat is not None and self._carries_f_hat(t):
                 force = force + f_hat
             x = x + self._clip(step * force)
-            step = self._decayed(step, gamma, t)
+            step = step * gamma
             if trace is not None:
                 trace.append(x)
         return x
@@ -203,10 +196,6 @@ class StretchingSolver(nn.Module):
         if self.training:
             return self.requery_every, self.follow_planes
         return self.eval_requery_every, self.eval_follow_planes
-
-    def _decayed(self, step: Tensor, gamma: Tensor, t: int) -> Tensor:
-        """The scale of step t + 1 after step t's: γ times it over the first `decay_steps` steps."""
-        return step * gamma if self.decay_steps is None or t < self.decay_steps else step
 
     def _carries_f_hat(self, t: int) -> bool:
         return self.f_hat_steps is None or t < self.f_hat_steps
@@ -265,7 +254,7 @@ class StretchingSolver(nn.Module):
                                            move.detach(), per_garment(move.detach() * force.detach()), owner)
             x = x + move * alpha[owner, None]
             direction, last_z, last_force = z_dir.detach(), z.detach(), force.detach()
-            step = self._decayed(step, gamma, t)
+            step = step * gamma
             if trace is not None:
                 trace.append(x)
         if bounds is not None and problem.bound is not None:
