@@ -8,18 +8,18 @@ Run: .venv/bin/python bench/suits_convergence.py [--makehuman ../shared/data/mak
 The suits are the instances of `physdrape eval --makehuman` (the same layout, bodies and wear),
 and their reference energies those of the evaluation record `--eval` (per instance the lower
 E_total of the oracle from the skinned start and the oracle refining the model's T = 15 drape).
-Per suit and T: the model (GNN → solver → handler) and the solver alone (Δx = 0, f̂ = 0, then the
-handler), each drape's share of X_init's excess energy over the reference that it leaves (1 at
-X_init, 0 at the reference; a suit's E_total itself can be near 0 or negative, its gravity term
-being measured from the evaluation's datum), the set's E_total over the reference as
-`results/eval.md` gives it (the mean over the suits over the references' mean), and each drape's
-piece crossings (intersecting face
-pairs whose faces belong to different pieces: the solver's layer pairs are the template's, so a
-piece that slides far over another could pass through it unseen by its energy). With the
-polish (the default), the oracle is run again from the model's T = 15 drape with the evaluation's
-settings, as the evaluation's refinement is: its E_total, its crossings, and per piece the mean
-vertical move [mm] from the T = 15 drape to it, which says what the steps leave unsettled. One
-torch thread. Writes <out>.md and <out>.json with the command and the commit.
+Per suit: GNN only (X_init + Δx: no solver, no handler), and per T the model (GNN → solver →
+handler) and the solver alone (Δx = 0, f̂ = 0, then the handler), each drape's share of X_init's
+excess energy over the reference that it leaves (1 at X_init, 0 at the reference; a suit's E_total
+itself can be near 0 or negative, its gravity term being measured from the evaluation's datum), the
+set's E_total over the reference as `results/eval.md` gives it (the mean over the suits over the
+references' mean), and each drape's piece crossings (intersecting face pairs whose faces belong to
+different pieces: the solver's layer pairs are the template's, so a piece that slides far over
+another could pass through it unseen by its energy). With the polish (the default), the oracle is
+run again from the model's T = 15 drape with the evaluation's settings, as the evaluation's
+refinement is: its E_total, its crossings, and per piece the mean vertical move [mm] from the
+T = 15 drape to it, which says what the steps leave unsettled. One torch thread. Writes <out>.md and
+<out>.json with the command and the commit.
 """
 
 from __future__ import annotations
@@ -80,6 +80,7 @@ def main() -> None:
                         oracle_budget_s=settings["oracle_budget_s"], oracle_tol=settings["oracle_tol"],
                         oracle_max_iters=settings["oracle_max_iters"], dtype=settings["dtype"])
     model, _ = load_model(args.checkpoint, variant=Variant.FULL)
+    gnn_only, _ = load_model(args.checkpoint, variant=Variant.GNN_ONLY)
     contact = ev.Contact.of(model)
     from physdrape.body.anny_body import get_anny_body
 
@@ -102,6 +103,8 @@ def main() -> None:
             return {**cell, "gap_left": cell["excess_J"] / row["x_init"]["excess_J"]}
 
         with torch.no_grad():
+            row["gnn_only"] = gap(measure(ev.run_model(gnn_only, batch, steps=None)[0], batch, contact,
+                                          ref["energy_total"], faces, piece))
             for steps in args.steps:
                 cell = {}
                 for name, network in (("model", True), ("solver", False)):
@@ -135,12 +138,13 @@ def main() -> None:
              f"{record['versions']['git_commit'][:7]}); one torch thread; load average at the end "
              f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
              "Gap left: the drape's E_total − reference over X_init's (1 at X_init, 0 at the reference); in "
-             "brackets its piece crossings (intersecting face pairs of different pieces). model: GNN → solver T → "
+             "brackets its piece crossings (intersecting face pairs of different pieces). GNN only: X_init + Δx; "
+             "model: GNN → solver T → "
              "handler; solver: Δx = 0, f̂ = 0, then the handler. The last row: the set's mean E_total over the "
              "references' mean, as `results/eval.md` gives it.", "",
-             "| suit | verts (pieces) | reference [J] (from) | X_init crossings | " + " | ".join(
+             "| suit | verts (pieces) | reference [J] (from) | X_init crossings | GNN only | " + " | ".join(
                  f"T = {t}: model | solver" for t in args.steps) + " |",
-             "|---|---|---|---|" + "---|---|" * len(args.steps)]
+             "|---|---|---|---|---|" + "---|---|" * len(args.steps)]
     for row in rows:
         cells = []
         for t in args.steps:
@@ -148,19 +152,22 @@ def main() -> None:
             cells += [f"{c[name]['gap_left']:.3f} ({c[name]['crossings']})" for name in ("model", "solver")]
         lines.append(f"| {row['garment']} | {row['verts']} ({'+'.join(map(str, row['pieces']))}) | "
                      f"{row['reference']:.4f} ({row['reference_source']}) | {row['x_init']['crossings']} | "
+                     f"{row['gnn_only']['gap_left']:.3f} ({row['gnn_only']['crossings']}) | "
                      + " | ".join(cells) + " |")
     mean_ref = float(np.mean([row["reference"] for row in rows]))
     means = [f"{np.mean([row['steps'][str(t)][name]['energy_total'] for row in rows]) / mean_ref:.3f}"
              for t in args.steps for name in ("model", "solver")]
-    lines.append("| all: mean E_total / mean reference | | | | " + " | ".join(means) + " |")
+    gnn_mean = np.mean([row["gnn_only"]["energy_total"] for row in rows]) / mean_ref
+    lines.append(f"| all: mean E_total / mean reference | | | | {gnn_mean:.3f} | " + " | ".join(means) + " |")
     lines.append("")
     lines.append("Excess over the reference [J] (E_total − reference; X_init's in the first column):")
     lines.append("")
-    lines.append("| suit | X_init | " + " | ".join(f"T = {t}: model | solver" for t in args.steps) + " |")
-    lines.append("|---|---|" + "---|---|" * len(args.steps))
+    lines.append("| suit | X_init | GNN only | " + " | ".join(f"T = {t}: model | solver" for t in args.steps) + " |")
+    lines.append("|---|---|---|" + "---|---|" * len(args.steps))
     for row in rows:
         cells = [f"{row['steps'][str(t)][name]['excess_J']:+.4f}" for t in args.steps for name in ("model", "solver")]
-        lines.append(f"| {row['garment']} | {row['x_init']['excess_J']:+.4f} | " + " | ".join(cells) + " |")
+        lines.append(f"| {row['garment']} | {row['x_init']['excess_J']:+.4f} | {row['gnn_only']['excess_J']:+.4f} | "
+                     + " | ".join(cells) + " |")
     if not args.no_polish:
         lines += ["", "The oracle from the model's T = 15 drape (the evaluation's settings): its end, its gap left "
                   "(below 0 where it ends lower than the evaluation's reference), the piece crossings of the "
