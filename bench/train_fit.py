@@ -8,10 +8,11 @@ The training instances are drawn as a training step draws them (`DrapeSource.mak
 0, 125, 250, ... so repeats are possible), from CONFIG's instance cache; the held-out ones are its
 validation set (garments and bodies never trained on). Per set and row: the set's mean E_total
 over the teacher drapes' mean, and the share of X_init's excess over the teachers that the row
-removes (1 − (E − teacher) / (E_X_init − teacher), over the set's sums). A share much higher on
-the training instances than on the held-out ones says the network fits its instances better than
-it generalises: more instances would help; equal shares say they would not. Rows: X_init, GNN
-only (X_init + Δx) and the full model at each T (GNN → solver → handler). One torch thread.
+removes (1 − (E − teacher) / (E_X_init − teacher), over the set's sums). A share higher on the
+training instances than on the held-out ones says the network fits the instances it has seen
+better than it generalises (whether more instances then help is for a run to say:
+`docs/training/README.md`, "More instances"). Rows: X_init, GNN only (X_init + Δx) and the full
+model at each T (GNN → solver → handler). One torch thread.
 Writes <out>.md and <out>.json with the command and the commit.
 """
 
