@@ -5,7 +5,7 @@ import torch
 from drape_cases import make_input, tube
 
 from physdrape.model import ModelConfig, PhysDrape, Variant
-from physdrape.model.features import NODE_FEATURES, STEP_FEATURES
+from physdrape.model.features import NEWTON_FEATURES, NODE_FEATURES, STEP_FEATURES
 from physdrape.model.stretching_solver import StretchingSolver
 from physdrape.physics.contact import plane_contact_forces, query_samples
 from physdrape.physics.forces import internal_forces
@@ -93,3 +93,50 @@ def test_the_step_parts_need_only_the_centroids_within_the_contact_reach():
     for got, want in zip(solver.step_parts(x, batch.cloth, query=near, **args),
                          solver.step_parts(x, batch.cloth, query=full, **args), strict=True):
         torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-14)
+
+
+def test_the_newton_part_is_the_preconditioned_step_refined_by_conjugate_gradients():
+    """One iteration: each garment's C F scaled to the quadratic model's minimum along it
+    (parallel to the two parts' sum; the iterations themselves are `_truncated_newton`'s, tested
+    with the solver); more iterations turn it; clipped to the step clip like the parts."""
+    batch, x = _stretched()
+    solver = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin, contact_stiffness=MODEL.contact_stiffness,
+                              max_step=0.0)
+    args = {"bodies": batch.bodies, "body_index": batch.body_index}
+    local, coarse, one = solver.step_parts(x, batch.cloth, newton_iterations=1, **args)
+    plain = local + coarse
+    for garment in range(2):  # each garment's own scale
+        rows = batch.cloth.vert_garment == garment
+        scale = float((one[rows] * plain[rows]).sum() / (plain[rows] * plain[rows]).sum())
+        assert scale > 0
+        torch.testing.assert_close(one[rows], scale * plain[rows], rtol=1e-8, atol=1e-12)
+    three = solver.step_parts(x, batch.cloth, newton_iterations=3, **args)[2]
+    first = batch.cloth.vert_garment == 0  # the other tube slides freely: its unclipped moves are huge
+    assert float(torch.nn.functional.cosine_similarity(three[first].flatten(), one[first].flatten(), dim=0)) < 0.99
+    assert len(solver.step_parts(x, batch.cloth, **args)) == 2  # no Newton part unless asked
+    clipping = StretchingSolver(kind="two_level", eta=1.0, margin=MODEL.margin,
+                                contact_stiffness=MODEL.contact_stiffness, max_step=1e-3)
+    clipped = clipping.step_parts(x, batch.cloth, newton_iterations=3, **args)[2]
+    assert float(clipped.norm(dim=-1).max()) <= 1e-3 * (1 + 1e-9)
+
+
+def test_the_network_reads_the_newton_part():
+    torch.manual_seed(0)
+    batch, _ = _stretched()
+    model = PhysDrape(ModelConfig(latent=16, blocks=2, levels=1, variant=Variant.GNN_ONLY, step_inputs=True,
+                                  step_newton_iterations=2)).double()
+    nodes, _, _ = model.graph_inputs(batch)
+    assert nodes.shape[1] == NODE_FEATURES + STEP_FEATURES + NEWTON_FEATURES
+    parts = model.solver.step_parts(batch.x_init, batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
+                                    newton_iterations=2)
+    torch.testing.assert_close(nodes[:, NODE_FEATURES:], torch.cat(parts, dim=-1))
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"step_newton_iterations": 2}, "step_inputs: true"),
+    ({"step_inputs": True, "step_newton_iterations": -1}, "≥ 0"),
+    ({"step_inputs": True, "step_newton_iterations": 2, "look_back_blocks": 3}, "look_back_blocks"),
+])
+def test_the_newton_part_is_checked(settings, message):
+    with pytest.raises(ValueError, match=message):
+        ModelConfig(**settings)

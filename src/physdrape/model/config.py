@@ -118,6 +118,12 @@ class ModelConfig:
     settling as a whole on smooth patches), six more node features. Message passing alone sees
     the forces, which the stiff local strain dominates; the coarse move says where the garment
     as a whole is pulled. Needs the two_level solver.
+    step_newton_iterations: with step_inputs, k > 0 adds three more node features: the first
+    step's truncated Newton move, k preconditioned conjugate-gradient iterations on the quadratic
+    model of the energy at the input positions (as the solver's first steps at inference,
+    `eval_inner_iterations`), clipped like the parts. Where K⁻¹F sees each vertex's own stiffness
+    only, the Newton move accounts for its neighbours' pull too: the in-plane strain that X_init
+    leaves needs moves precise to a fraction of an edge. 0: none.
     eval_move_gain: in eval mode, the solver starts from X_init + g Δx instead of the network's
     drape X_init + Δx (g = 1: the network's drape; the GNN-only drape is X_init + Δx whatever g).
     A network trained on its own drape's energy stops short of the garment-wide move, which the
@@ -173,6 +179,7 @@ class ModelConfig:
     passes: int = 1
     eval_move_gain: float = 1.0
     step_inputs: bool = False
+    step_newton_iterations: int = 0
     look_back_blocks: int = 0
     normalizer_accumulations: int = 100
     variant: Variant = Variant.FULL
@@ -189,6 +196,16 @@ class ModelConfig:
         if self.step_inputs and self.solver is not SolverKind.TWO_LEVEL:
             raise ValueError("ModelConfig.step_inputs reads the two_level solver's first step; set solver: two_level "
                              f"(got {self.solver.value})")
+        k = self.step_newton_iterations
+        if isinstance(k, bool) or not isinstance(k, int) or k < 0:
+            raise ValueError(f"ModelConfig.step_newton_iterations must be an integer ≥ 0 (0: no Newton move among the "
+                             f"inputs), got {k!r}")
+        if k and not self.step_inputs:
+            raise ValueError("ModelConfig.step_newton_iterations adds to the solver's step parts among the inputs: "
+                             "set step_inputs: true")
+        if k and self.look_back_blocks:
+            raise ValueError("ModelConfig.look_back_blocks reads the two step parts only; set "
+                             "step_newton_iterations: 0 with a look-back stage")
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")

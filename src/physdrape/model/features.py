@@ -15,6 +15,8 @@ MATERIAL_FLOOR = 1e-12
 NODE_FEATURES = 11  # normal (3), signed distance (1), f_int (3), log μ, log λ, log k_bend, log m_i
 #: With `ModelConfig.step_inputs`: the block-Jacobi move (3) and the coarse move (3) of the solver's first step.
 STEP_FEATURES = 6
+#: With `ModelConfig.step_newton_iterations`: the first step's truncated Newton move (3).
+NEWTON_FEATURES = 3
 EDGE_FEATURES = 8  # x_ij (3), |x_ij| (1), rest x⁰_ij (3), l⁰_ij (1)
 
 

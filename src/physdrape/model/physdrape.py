@@ -14,7 +14,8 @@ from physdrape.geometry.garment import GarmentBatch, GraphLevels
 from physdrape.geometry.proximity import BodySurface, SurfaceQuery
 from physdrape.model.collision_handler import CollisionHandler
 from physdrape.model.config import Displacement, ModelConfig, Variant
-from physdrape.model.features import EDGE_FEATURES, NODE_FEATURES, STEP_FEATURES, edge_features, node_features
+from physdrape.model.features import EDGE_FEATURES, NEWTON_FEATURES, NODE_FEATURES, STEP_FEATURES
+from physdrape.model.features import edge_features, node_features
 from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
 from physdrape.model.stretching_solver import StretchingSolver, clip_moves
@@ -91,6 +92,7 @@ class PhysDrape(nn.Module):
         super().__init__()
         self.config = config
         node_in = NODE_FEATURES + (STEP_FEATURES if config.step_inputs else 0)
+        node_in += NEWTON_FEATURES if config.step_newton_iterations else 0
         self.node_normalizer = Normalizer(node_in, max_accumulations=config.normalizer_accumulations)
         edge_in = EDGE_FEATURES + (config.levels + 1 if config.levels else 0)
         self.edge_normalizer = Normalizer(edge_in, max_accumulations=config.normalizer_accumulations)
@@ -124,7 +126,8 @@ class PhysDrape(nn.Module):
     def graph_inputs(self, batch: DrapeInput, x: Tensor | None = None) -> tuple[Tensor, Tensor, GraphLevels]:
         """Raw (un-normalised) node and edge features at x (default X_init), in the network's
         dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels);
-        with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x."""
+        with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x
+        (and its truncated Newton move, with `config.step_newton_iterations`)."""
         return self._graph_inputs(batch, x)[:3]
 
     def _graph_inputs(self, batch: DrapeInput,
@@ -138,9 +141,9 @@ class PhysDrape(nn.Module):
             reach = max(self.solver.contact_band, self.solver.margin)
             query = query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
             nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
-            local, coarse = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies,
-                                                   body_index=batch.body_index, query=query)
-            nodes = torch.cat([nodes, local.to(nodes.dtype), coarse.to(nodes.dtype)], dim=-1)
+            parts = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
+                                           query=query, newton_iterations=self.config.step_newton_iterations)
+            nodes = torch.cat([nodes, *(part.to(nodes.dtype) for part in parts)], dim=-1)
         else:
             query = batch.bodies.query(x, body_index=batch.body_index)
             nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)

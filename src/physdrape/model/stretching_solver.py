@@ -276,16 +276,26 @@ class StretchingSolver(nn.Module):
 
     @torch.no_grad()
     def step_parts(self, x: Tensor, cloth: Cloth, *, bodies: BodySurface | None = None,
-                   body_index: Tensor | None = None, query: SurfaceQuery | None = None) -> tuple[Tensor, Tensor]:
+                   body_index: Tensor | None = None, query: SurfaceQuery | None = None,
+                   newton_iterations: int = 0) -> tuple[Tensor, ...]:
         """The two parts of a first two-level step's direction C F at x (ΣV, 3) [m], F = −∇Φ
         without f̂ (body contact on planes queried at x; bodies / body_index as in `forward`):
         the block-Jacobi move K⁻¹F and the coarse correction's move P (Pᵀ K P)⁻¹ Pᵀ F, each
         (ΣV, 3) [m], each vertex's clipped to `max_step` as a step's (a patch out of the body's
         reach has next to no coarse stiffness: its move under gravity alone is unbounded), not
         differentiated. query: x's samples' body query, made already (`physics.contact.query_samples`
-        or `query_samples_near` with a reach ≥ the contact band and ε: the same parts)."""
+        or `query_samples_near` with a reach ≥ the contact band and ε: the same parts).
+        newton_iterations: k > 0 adds a third part, the truncated Newton move z ≈ K⁻¹F of k
+        conjugate-gradient iterations preconditioned by C (as the solver's first steps make it),
+        clipped the same way."""
         force, inverse, coarse = self._first_step(x, cloth, bodies, body_index, query)
-        return self._clip((inverse @ force.unsqueeze(-1)).squeeze(-1)), self._clip(coarse.solve(force))
+        parts = (self._clip((inverse @ force.unsqueeze(-1)).squeeze(-1)), self._clip(coarse.solve(force)))
+        if not newton_iterations:
+            return parts
+        owner = cloth.vert_garment
+        newton = _truncated_newton(partial(_precondition, inverse, coarse), coarse.stiffness_product, force,
+                                   newton_iterations, lambda v: cloth.sum_per_garment(v.sum(-1), owner), owner)
+        return parts + (self._clip(newton),)
 
     def _first_step(self, x: Tensor, cloth: Cloth, bodies: BodySurface | None, body_index: Tensor | None,
                     query: SurfaceQuery | None = None) -> tuple[Tensor, Tensor, CoarseSpace]:
