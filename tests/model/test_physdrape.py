@@ -79,6 +79,30 @@ def test_level_schedule_walks_v_cycles():
     assert level_schedule(9, 2) == [0, 1, 2, 1, 0, 1, 2, 1, 0]
 
 
+def test_mesh_blocks_start_as_the_identity_and_learn(two_tubes):
+    """Blocks added on the mesh after the V-cycles leave a trained network's output as it was
+    until trained, and the loss's gradient reaches them."""
+    torch.manual_seed(0)
+    config = ModelConfig(latent=16, blocks=3, levels=1, variant=Variant.GNN_ONLY)
+    base = PhysDrape(config)
+    deeper = PhysDrape(ModelConfig(**{**to_mapping(config), "mesh_blocks": 2}))
+    assert deeper.gnn.schedule == level_schedule(3, 1) + [0, 0]
+    missing, unexpected = deeper.load_state_dict(base.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith(("gnn.blocks.3.", "gnn.blocks.4.")) for k in missing)
+    batch = make_input(two_tubes, [0.15, 0.15])
+    with torch.no_grad():  # the decoder at zero would hide a difference: give it weights
+        for model in (base, deeper):
+            torch.manual_seed(1)
+            for p in model.gnn.decoder.parameters():
+                p.normal_(0.0, 0.1)
+    torch.testing.assert_close(deeper(batch).x, base(batch).x, rtol=0, atol=0)
+    loss, _ = drape_loss(deeper(batch).x, batch.cloth, batch.bodies, batch.body_index, LossConfig(), **CONTACT)
+    loss.backward()
+    assert float(deeper.gnn.blocks[4].node_mlp[-2].weight.grad.abs().sum()) > 0
+    with pytest.raises(ValueError, match="mesh_blocks"):
+        ModelConfig(mesh_blocks=-1)
+
+
 @pytest.mark.parametrize("mlp_layers", [1, 2, 3])
 def test_processor_block_equals_the_concatenated_form(mlp_layers):
     """The block applies its MLPs' first layers to the parts of their inputs apart: the paper's

@@ -136,3 +136,21 @@ def test_init_from_with_a_zero_output_keeps_the_decoders_last_layer_at_zero(tmp_
     batch = tuned.source.make_batch([11, 12]).drape
     tuned.model.eval()
     torch.testing.assert_close(tuned.model(batch).x, tuned.model.physics_only(batch).x, rtol=0, atol=0)
+
+
+def test_init_from_a_shallower_checkpoint_keeps_the_added_mesh_blocks_at_the_identity(tmp_path):
+    """model.mesh_blocks on top of a checkpoint without them: its weights, and the new blocks as
+    they start (silent), so the fine-tune starts from the checkpoint's drape."""
+    from dataclasses import replace
+
+    trainer(tmp_path / "base").run()
+    base, _ = ckpt.read_checkpoint(tmp_path / "base")
+    deeper = replace(TINY, model=replace(TINY.model, mesh_blocks=1),
+                     optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
+    tuned = trainer(tmp_path / "tuned", deeper)
+    fresh = {k: v.clone() for k, v in tuned.model.state_dict().items()}
+    tuned.init_weights(tmp_path / "base")
+    added = f"gnn.blocks.{TINY.model.blocks}."
+    for name, value in tuned.model.state_dict().items():
+        assert torch.equal(value, fresh[name] if name.startswith(added) else base[name]), name
+    assert any(k.startswith(added) for k in fresh)

@@ -43,6 +43,9 @@ class ModelConfig:
     K levels the blocks walk V-cycles over levels 0…K, each level reaching about twice as far as
     the one below, see `gnn.level_schedule` and `topology.coarse_graphs`; the coarse nodes are
     picked in vertex order, so a model with levels is not exactly equivariant to relabelling).
+    mesh_blocks: processor blocks on the mesh graph after the V-cycles, before the decoder, each
+    starting as the identity (`EncodeProcessDecode`): more local work per pass, addable to a
+    trained network (`optim.init_from` keeps them at their start).
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
     solver: "two_level" (conjugate directions, block Jacobi plus a coarse correction on smooth
@@ -144,6 +147,7 @@ class ModelConfig:
 
     latent: int = 64
     blocks: int = 8
+    mesh_blocks: int = 0
     mlp_layers: int = 2
     levels: int = 0
     zero_init_output: bool = False
@@ -206,6 +210,8 @@ class ModelConfig:
         if k and self.look_back_blocks:
             raise ValueError("ModelConfig.look_back_blocks reads the two step parts only; set "
                              "step_newton_iterations: 0 with a look-back stage")
+        if self.mesh_blocks < 0:
+            raise ValueError(f"ModelConfig.mesh_blocks must be ≥ 0, got {self.mesh_blocks}")
         for name in ("latent", "blocks", "mlp_layers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be ≥ 1, got {getattr(self, name)}")

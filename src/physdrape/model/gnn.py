@@ -90,6 +90,9 @@ class EncodeProcessDecode(nn.Module):
         node_in, edge_in: raw (normalised) feature widths; out: decoder output width.
         latent: D; blocks: L; mlp_layers: Linear layers per MLP (the paper: 2).
         levels: coarse graph levels the blocks walk (`level_schedule`); 0: the mesh graph only.
+        mesh_blocks: more blocks on the mesh graph after those (local work on what the V-cycles
+            gathered), each starting as the identity (its MLPs' last layers at zero), so that
+            they can be added to a trained network without changing its output.
         zero_init_output: start the decoder's last layer at zero (an untrained network outputs 0).
         look_back_in, look_back_blocks: the look-back stage's feature width and its blocks (an
             odd number, a V-cycle over (look_back_blocks − 1) / 2 levels at most `levels`; 0:
@@ -100,12 +103,16 @@ class EncodeProcessDecode(nn.Module):
 
     def __init__(self, node_in: int, edge_in: int, out: int, *, latent: int, blocks: int, mlp_layers: int = 2,
                  levels: int = 0, zero_init_output: bool = False, look_back_in: int = 0,
-                 look_back_blocks: int = 0) -> None:
+                 look_back_blocks: int = 0, mesh_blocks: int = 0) -> None:
         super().__init__()
-        self.schedule = level_schedule(blocks, levels)
+        self.schedule = level_schedule(blocks, levels) + [0] * mesh_blocks
         self.node_encoder = mlp(node_in, latent, latent, layers=mlp_layers)
         self.edge_encoder = mlp(edge_in, latent, latent, layers=mlp_layers)
-        self.blocks = nn.ModuleList(ProcessorBlock(latent, mlp_layers=mlp_layers) for _ in range(blocks))
+        self.blocks = nn.ModuleList(ProcessorBlock(latent, mlp_layers=mlp_layers) for _ in self.schedule)
+        for block in self.blocks[blocks:]:  # identity at the start: edges += 0, nodes += 0
+            for last in (block.edge_mlp[-2], block.node_mlp[-2]):
+                nn.init.zeros_(last.weight)
+                nn.init.zeros_(last.bias)
         self.decoder = mlp(latent, latent, out, layers=mlp_layers, layer_norm=False)
         if zero_init_output:  # the untrained network outputs 0: training starts from its input state
             nn.init.zeros_(self.decoder[-1].weight)

@@ -99,7 +99,7 @@ class PhysDrape(nn.Module):
         self.gnn = EncodeProcessDecode(
             node_in, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
             levels=config.levels, zero_init_output=config.zero_init_output,
-            look_back_in=STEP_FEATURES, look_back_blocks=config.look_back_blocks,
+            look_back_in=STEP_FEATURES, look_back_blocks=config.look_back_blocks, mesh_blocks=config.mesh_blocks,
         )
         self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
                                        margin=config.margin, contact_stiffness=config.contact_stiffness,

@@ -172,7 +172,8 @@ class Trainer:
         and the decoder's last layer when `model.zero_init_output` is set (the fine-tune then
         starts from the drape without the network and takes the checkpoint's features); and the
         look-back stage (`model.look_back_blocks`) when the checkpoint has none (its decoder starts
-        at zero, so the fine-tune starts from the checkpoint's drape)."""
+        at zero, so the fine-tune starts from the checkpoint's drape), and the processor blocks
+        beyond the checkpoint's (`model.mesh_blocks`, which start as the identity: likewise)."""
         weights, config = ckpt.read_checkpoint(checkpoint)
         own = self.model.state_dict()
         keep = []
@@ -182,7 +183,7 @@ class Trainer:
         if self.model.config.zero_init_output:
             last = f"gnn.decoder.{len(self.model.gnn.decoder) - 1}."
             keep += [k for k in own if k.startswith(last)]
-        keep += [k for k in own if k.startswith("gnn.look_back_") and k not in weights]
+        keep += [k for k in own if k.startswith(("gnn.look_back_", "gnn.blocks.")) and k not in weights]
         weights = {**weights, **{k: own[k] for k in keep}}
         try:
             self.model.load_state_dict({k: v.to(own[k].dtype) if k in own else v for k, v in weights.items()})
