@@ -183,7 +183,8 @@ class Trainer:
         if self.model.config.zero_init_output:
             last = f"gnn.decoder.{len(self.model.gnn.decoder) - 1}."
             keep += [k for k in own if k.startswith(last)]
-        keep += [k for k in own if k.startswith(("gnn.look_back_", "gnn.blocks.")) and k not in weights]
+        added = tuple(f"gnn.blocks.{i}." for i in range(self.model.config.blocks, len(self.model.gnn.blocks)))
+        keep += [k for k in own if k.startswith(("gnn.look_back_", *added)) and k not in weights]
         weights = {**weights, **{k: own[k] for k in keep}}
         try:
             self.model.load_state_dict({k: v.to(own[k].dtype) if k in own else v for k, v in weights.items()})
