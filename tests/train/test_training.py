@@ -154,3 +154,7 @@ def test_init_from_a_shallower_checkpoint_keeps_the_added_mesh_blocks_at_the_ide
     for name, value in tuned.model.state_dict().items():
         assert torch.equal(value, fresh[name] if name.startswith(added) else base[name]), name
     assert any(k.startswith(added) for k in fresh)
+    longer = replace(TINY, model=replace(TINY.model, blocks=TINY.model.blocks + 1),
+                     optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
+    with pytest.raises(ckpt.CheckpointError, match="does not fit this run's model"):
+        trainer(tmp_path / "longer", longer).init_weights(tmp_path / "base")
