@@ -30,7 +30,7 @@ the outputs):
   (``front_gap_init_mm``: at X_init; ``front_gap_template_mm``: the mean pair distance on the template);
 - ``b2g_percent``: the drape's B2G % (`physics.metrics`);
 - ``piece_x_init``, ``piece_x``: face pairs of different pieces that intersect at X_init and in
-  the drape (`garments.intersections`); ``piece_x_new`` = max(0, drape − X_init).
+  the drape (`geometry.intersections`); ``piece_x_new`` = max(0, drape − X_init).
 
 Writes <out>.json and <out>.md atomically, each naming the command and the git commit, and front
 and back renders of every drape of --render-variant (default the last variant) as
@@ -54,7 +54,7 @@ from physdrape.atomic import write_text
 from physdrape.body.anny_body import PHENOTYPE_NAMES
 from physdrape.eval.report import finite_or_none
 from physdrape.garments.closures import panel_overlaps
-from physdrape.garments.intersections import piece_crossings
+from physdrape.geometry.intersections import piece_crossings
 from physdrape.garments.pieces import garment_parts
 from physdrape.provenance import provenance
 

@@ -64,7 +64,7 @@ def test_pipeline_layers_the_tee_over_the_trousers(draper):
 
 @needs_suit
 def test_draper_layers_keep_the_pieces_apart(draper):
-    from physdrape.garments.intersections import self_intersecting_pairs
+    from physdrape.geometry.intersections import self_intersecting_pairs
 
     suit = draper.garment(str(SUIT))
     piece = garment_parts(suit.verts, suit.faces).piece
@@ -86,7 +86,7 @@ def test_draper_layers_keep_the_pieces_apart(draper):
 def test_mhclo_template_pieces_do_not_cross(draper):
     """The pieces of a MakeHuman suit refit crossing each other; its template is untangled."""
     from physdrape.garments import load_mhclo
-    from physdrape.garments.intersections import self_intersecting_faces
+    from physdrape.geometry.intersections import self_intersecting_faces
 
     crossed = SUIT.parents[1] / "female_casualsuit01" / "female_casualsuit01.mhclo"
     raw = load_mhclo(crossed)

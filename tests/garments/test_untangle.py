@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from physdrape.garments.intersections import (
+from physdrape.geometry.intersections import (
     self_intersecting_faces,
     self_intersecting_pairs,
 )

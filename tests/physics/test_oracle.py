@@ -348,3 +348,55 @@ def test_public_names():
     assert IterationRecord(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0).projected
     with silenced(1):
         print("not shown")
+
+
+def _collar_over_top(*, height=0.40):
+    """Two pieces in one garment: the small top (resting on the cone's shoulders) and a flat ring
+    above its shoulders that gravity pulls down through the top onto the body."""
+    top = _top()
+    rings, segments = 3, 24
+    verts, faces = open_cylinder(rings, segments, radius=1.0, length=1.0)
+    radius = np.linspace(0.09, 0.15, rings)[np.repeat(np.arange(rings), segments)]
+    verts[:, [0, 2]] *= radius[:, None]
+    verts[:, 1] = height
+    top_verts = top.rest.numpy()
+    return Garment.from_mesh(np.concatenate([top_verts, verts]),
+                             np.concatenate([top.faces.numpy(), faces + len(top_verts)]))
+
+
+def test_relax_does_not_carry_one_piece_through_another(body, monkeypatch):
+    """The energy has no term between two pieces without layer pairs: left alone, the oracle lets
+    the ring fall through the top onto the body; its line search refuses the steps that make the
+    two pieces' faces intersect (`physics.oracle.crossings.PieceGuard`)."""
+    from physdrape.geometry.intersections import piece_crossings
+    from physdrape.physics.oracle import crossings
+
+    garment = _collar_over_top()
+    cloth = Cloth.build(garment)
+    faces = garment.faces.numpy()
+    assert piece_crossings(garment.rest.numpy(), faces) == 0
+    guarded = relax(garment.rest.clone(), cloth, body, max_iters=60)
+    assert piece_crossings(guarded.x.numpy(), faces) == 0
+    ring = slice(len(_top().rest), None)
+    assert float(guarded.x[ring, 1].mean()) < 0.40 - 0.02  # it did fall, onto the top
+    monkeypatch.setattr(crossings.PieceGuard, "of", staticmethod(lambda *args: None))
+    unguarded = relax(garment.rest.clone(), cloth, body, max_iters=60)
+    assert piece_crossings(unguarded.x.numpy(), faces) > 0
+    assert float(unguarded.energy_terms["total"]) < float(guarded.energy_terms["total"])
+
+
+def test_piece_guard_flags_only_new_crossings_between_pieces_of_one_garment():
+    """Two triangles of two pieces: crossing only when moved through each other; a pair already
+    crossed is not new; two garments' faces that intersect are no crossing of pieces."""
+    from physdrape.physics.oracle.crossings import PieceGuard
+
+    faces = torch.tensor([[0, 1, 2], [3, 4, 5]])
+    apart = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 0, 1], [0.2, 0.1, 0.2], [0.2, 0.1, 0.6], [0.6, 0.1, 0.2]],
+                         dtype=torch.float64)
+    through = apart.clone()
+    through[4:, 1] = -0.1  # one corner above the first triangle's plane, two below: it pierces it
+    one = PieceGuard.of(faces, torch.tensor([0, 0]), 6, 1)
+    assert one is not None and one.pairs(apart).size == 0 and one.pairs(through).size == 1
+    assert one.new_crossings(through, one.pairs(apart)).tolist() == [True]
+    assert one.new_crossings(through, one.pairs(through)).tolist() == [False]
+    assert PieceGuard.of(faces, torch.tensor([0, 1]), 6, 2) is None  # each garment in one piece

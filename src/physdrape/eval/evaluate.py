@@ -62,7 +62,7 @@ from physdrape.eval.instances import (
 )
 from physdrape.eval.reference_cache import ReferenceCache, reference_key
 from physdrape.eval.report import PUBLISHED_ABLATION, PUBLISHED_MAIN, PUBLISHED_NOTE
-from physdrape.garments.intersections import piece_crossings
+from physdrape.geometry.intersections import piece_crossings
 from physdrape.geometry.topology import connected_components
 from physdrape.model import DrapeInput, PhysDrape, Variant
 from physdrape.physics import energy
@@ -144,7 +144,7 @@ class Contact(NamedTuple):
 
 def _metrics(x: torch.Tensor, batch: DrapeInput, contact: Contact) -> dict[str, float]:
     """The drape's metrics and E_total; for a garment of several pieces, also its piece crossings
-    (`garments.intersections.piece_crossings`: the layer order's pairs hold each vertex on its side,
+    (`geometry.intersections.piece_crossings`: the layer order's pairs hold each vertex on its side,
     and do not see a piece that is already through another)."""
     m = drape_metrics(x, batch.garments, batch.bodies, batch.body_index, cloth=batch.cloth)
     out = {name: values[0] for name, values in m.as_dict().items()}

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from physdrape.garments.intersections import self_intersecting_pairs
+from physdrape.geometry.intersections import self_intersecting_pairs
 from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
 from physdrape.geometry.topology import undirected_edges, vertex_adjacency
 

@@ -1,5 +1,6 @@
-"""The oracle's sparse linear algebra: assembly of element blocks into one symmetric matrix, and
-its factorisation (CHOLMOD through cvxopt, or SuperLU in symmetric mode)."""
+"""The oracle's sparse linear algebra: assembly of element blocks into one symmetric matrix (and
+of the vertex-pair terms into another, `_pair_hessian`), and its factorisation (CHOLMOD through
+cvxopt, or SuperLU in symmetric mode)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,11 @@ import sys
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from torch import Tensor
+
+from physdrape.physics.cloth import Cloth
+from physdrape.physics.layers import layer_pair_blocks
+from physdrape.physics.stitches import stitch_pair_blocks
 
 
 class LinearSolver(str, enum.Enum):
@@ -151,3 +157,26 @@ def _resolve_solver(solver: LinearSolver | str) -> LinearSolver:
                               "(or use solver='superlu')") from None
         return LinearSolver.SUPERLU
     return LinearSolver.CHOLMOD
+
+
+def _pair_hessian(x: Tensor, cloth: Cloth, hess_c):
+    """The Hessian terms that couple vertices outside faces and hinges, as one sparse (3V, 3V)
+    matrix: the IPC barrier's `hess_c` and the exact (PSD) pair blocks [[H, −H], [−H, H]] of the
+    stitches and the layer order; None without any."""
+    out = hess_c
+    for pairs, blocks in ((cloth.stitches, stitch_pair_blocks), (cloth.layers, layer_pair_blocks)):
+        if pairs is None:
+            continue
+        h = blocks(x, pairs).numpy()  # (P, 3, 3)
+        i, j = pairs.pairs[:, 0].numpy(), pairs.pairs[:, 1].numpy()
+        axis = np.arange(3)
+        rows, cols, vals = [], [], []
+        for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+            rows.append((3 * a[:, None, None] + axis[None, :, None]).repeat(3, 2).reshape(-1))
+            cols.append((3 * b[:, None, None] + axis[None, None, :]).repeat(3, 1).reshape(-1))
+            vals.append(sign * h.reshape(-1))
+        n = 3 * cloth.num_verts
+        matrix = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(n, n)).tocsc()
+        out = matrix if out is None else out + matrix
+    return out

@@ -28,19 +28,20 @@ from physdrape.physics.contact import (
 from physdrape.physics.forces import energy_terms, internal_forces
 from physdrape.physics.grip import grip_blocks
 from physdrape.physics.hessians import bend_gauss_newton_hessian, bend_hessian, strain_hessian
-from physdrape.physics.layers import followed, layer_pair_blocks
+from physdrape.physics.layers import followed
+from physdrape.physics.oracle.crossings import PieceGuard
 from physdrape.physics.oracle.ipc import DEFAULT_BARRIER_STIFFNESS, DEFAULT_DHAT, _IPCContact
 from physdrape.physics.oracle.linalg import (
     LinearSolver,
     _Assembler,
     _diagonal_positions,
+    _pair_hessian,
     _resolve_solver,
     _solve_fixed,
     _SparseSolver,
     silenced,
 )
 from physdrape.physics.oracle.results import IterationRecord, OracleResult
-from physdrape.physics.stitches import stitch_pair_blocks
 
 #: How far [m] a vertex moves before a multi-piece garment's layer pairs are searched again at the
 #: current positions (`physics.layers.follow_pairs`, about a third of an iteration's time on a
@@ -90,29 +91,6 @@ class _ContactState:
     contact: Tensor
 
 
-def _pair_hessian(x: Tensor, cloth: Cloth, hess_c):
-    """The Hessian terms that couple vertices outside faces and hinges, as one sparse (3V, 3V)
-    matrix: the IPC barrier's `hess_c` and the exact (PSD) pair blocks [[H, −H], [−H, H]] of the
-    stitches and the layer order; None without any."""
-    out = hess_c
-    for pairs, blocks in ((cloth.stitches, stitch_pair_blocks), (cloth.layers, layer_pair_blocks)):
-        if pairs is None:
-            continue
-        h = blocks(x, pairs).numpy()  # (P, 3, 3)
-        i, j = pairs.pairs[:, 0].numpy(), pairs.pairs[:, 1].numpy()
-        axis = np.arange(3)
-        rows, cols, vals = [], [], []
-        for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
-            rows.append((3 * a[:, None, None] + axis[None, :, None]).repeat(3, 2).reshape(-1))
-            cols.append((3 * b[:, None, None] + axis[None, None, :]).repeat(3, 1).reshape(-1))
-            vals.append(sign * h.reshape(-1))
-        n = 3 * cloth.num_verts
-        matrix = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                               shape=(n, n)).tocsc()
-        out = matrix if out is None else out + matrix
-    return out
-
-
 class _Newton:
     """One `relax` call (arguments as `relax`; cloth in float64, body_index per garment)."""
 
@@ -144,6 +122,8 @@ class _Newton:
         self.reg = regularization
         self.exact_wait, self.exact_backoff = 0, 1
         self.follows = cloth.layers is not None and cloth.layers.follows  # layer pairs found as it goes
+        # a step may not carry a face of one piece through another piece (`oracle.crossings`)
+        self.pieces = PieceGuard.of(cloth.faces, cloth.face_garment, cloth.num_verts, G)
 
     def follow_layers(self, x: Tensor) -> None:
         """Find the layer order's pairs again at x (`physics.layers.followed`; `self.follows`)."""
@@ -281,8 +261,10 @@ class _Newton:
         """Backtracking Armijo per garment along p; garments in `skip` stay put.
 
         A trial that moves a vertex or a face centroid from outside the body to inside is
-        rejected. Returns the new positions, the step lengths (G,), which garments accepted a step
-        (G,) (skip counts as accepted) and each step's shrink factor against its first trial (G,).
+        rejected, and so is one that makes a face of a multi-piece garment intersect a face of
+        another of its pieces where they did not (`PieceGuard`). Returns the new positions, the
+        step lengths (G,), which garments accepted a step (G,) (skip counts as accepted) and each
+        step's shrink factor against its first trial (G,).
         """
         cloth, vg, G, dt = self.cloth, self.vg, self.num_garments, x.dtype
         slope = cloth.sum_per_garment((grad * p).sum(-1), vg)  # (G,) < 0 for a descent direction
@@ -298,6 +280,7 @@ class _Newton:
         alpha0 = alpha.clone()
         accepted = skip.clone()
         x_new = x.clone()
+        crossed = self.pieces.pairs(x) if self.pieces is not None else None
         for _ in range(self.max_line_search):
             trial = x + alpha[vg][:, None] * p
             e_c_t, inside_t = self.trial_contact(trial)
@@ -305,6 +288,8 @@ class _Newton:
             new_inside = (inside_t & ~inside0).to(torch.int64)
             bad = torch.zeros(G, dtype=torch.int64).index_add_(0, self.sample_garment, new_inside) > 0
             ok = (e_t <= energy + 1e-4 * alpha * slope) & ~bad & ~accepted
+            if crossed is not None and bool((ok & self.pieces.multi).any()):
+                ok &= ~self.pieces.new_crossings(trial, crossed)
             if bool(ok.any()):
                 take = ok[vg]
                 x_new[take] = trial[take]

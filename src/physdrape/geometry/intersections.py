@@ -1,8 +1,9 @@
 """Triangle-mesh intersection tests that `physdrape.geometry.proximity` does not answer.
 
 Closest points, signed distances and inside tests against a body are
-`physdrape.geometry.proximity.BodySurface`'s; this module only adds the two intersection queries
-the garment tools need, on Warp's triangle BVH (CPU, float32: exact to ~1e-6 m):
+`physdrape.geometry.proximity.BodySurface`'s; this module adds the intersection queries of the
+garment tools and of the oracle's guard against crossed pieces, on Warp's triangle BVH (CPU,
+float32: exact to ~1e-6 m):
 
 - `self_intersecting_faces`: faces of a garment crossing another face of the same garment;
 - `self_intersecting_pairs`: the crossing face pairs themselves (to untangle them);

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from physdrape.garments.intersections import (
+from physdrape.geometry.intersections import (
     piece_crossings,
     ray_hit_distances,
     self_intersecting_faces,

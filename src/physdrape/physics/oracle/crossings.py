@@ -1,0 +1,64 @@
+"""The oracle's guard against one piece of a garment passing through another.
+
+A multi-piece garment's layer order (`physics.layers`) holds each vertex on its side of the
+piece it was paired with, but its energy does not see a piece that is already through another:
+once a step has carried a face through a face of another piece, nothing pushes it back, and a
+lower-energy equilibrium with the pieces crossed would become the reference every drape is
+measured against. `PieceGuard` lets the line search refuse such a step: a trial that makes two
+faces of different pieces of one garment intersect where they did not is rejected, as a trial
+that moves a vertex into the body is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from physdrape.geometry.intersections import self_intersecting_pairs
+from physdrape.geometry.topology import connected_components
+
+
+class PieceGuard:
+    """The crossings between pieces of the garments of one packed batch.
+
+    Args:
+        faces: the batch's triangles (F, 3) int; face_garment: each face's garment (F,) int;
+        num_verts: ΣV; num_garments: G.
+    Use `of` to get one only where some garment has several pieces (connected components).
+    """
+
+    def __init__(self, faces: Tensor, face_garment: Tensor, num_verts: int, num_garments: int) -> None:
+        self.faces = faces.cpu().numpy().astype(np.int64)
+        piece = connected_components(num_verts, self.faces)
+        self.face_piece = piece[self.faces[:, 0]]
+        self.face_garment = face_garment.cpu().numpy().astype(np.int64)
+        self.num_garments = num_garments
+        pieces = {(int(g), int(p)) for g, p in zip(self.face_garment, self.face_piece)}
+        counts = np.bincount([g for g, _ in pieces], minlength=num_garments)
+        self.multi = torch.from_numpy(counts > 1)  # (G,) garments of several pieces
+
+    @staticmethod
+    def of(faces: Tensor, face_garment: Tensor, num_verts: int, num_garments: int) -> PieceGuard | None:
+        """A guard for the batch, or None where every garment is in one piece (nothing to guard)."""
+        guard = PieceGuard(faces, face_garment, num_verts, num_garments)
+        return guard if bool(guard.multi.any()) else None
+
+    def pairs(self, x: Tensor) -> np.ndarray:
+        """The intersecting face pairs at x (ΣV, 3) whose faces lie on two pieces of one garment,
+        each encoded as i·F + j (i < j), sorted."""
+        found = self_intersecting_pairs(x.detach().cpu().numpy(), self.faces)
+        if not len(found):
+            return np.zeros(0, np.int64)
+        i, j = found[:, 0], found[:, 1]
+        keep = (self.face_garment[i] == self.face_garment[j]) & (self.face_piece[i] != self.face_piece[j])
+        return np.sort(i[keep] * len(self.faces) + j[keep])
+
+    def new_crossings(self, x: Tensor, known: np.ndarray) -> Tensor:
+        """(G,) bool: the garments with a crossing pair at x (ΣV, 3) that is not among `known`
+        (`pairs` of the state the step starts from)."""
+        codes = self.pairs(x)
+        fresh = codes[~np.isin(codes, known)]
+        out = np.zeros(self.num_garments, bool)
+        out[self.face_garment[fresh // len(self.faces)]] = True
+        return torch.from_numpy(out)
