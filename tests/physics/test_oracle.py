@@ -367,9 +367,11 @@ def _collar_over_top(*, height=0.40):
 def test_relax_does_not_carry_one_piece_through_another(body, monkeypatch):
     """The energy has no term between two pieces without layer pairs: left alone, the oracle lets
     the ring fall through the top onto the body; its line search refuses the steps that make the
-    two pieces' faces intersect (`physics.oracle.crossings.PieceGuard`)."""
+    two pieces' faces intersect (`physics.oracle.crossings.PieceGuard`), and the step searched
+    instead holds the corners of those faces, so that the rest of the ring settles on: without
+    that hold the oracle stops where the ring first touches the top."""
     from physdrape.geometry.intersections import piece_crossings
-    from physdrape.physics.oracle import crossings
+    from physdrape.physics.oracle import crossings, newton
 
     garment = _collar_over_top()
     cloth = Cloth.build(garment)
@@ -379,6 +381,12 @@ def test_relax_does_not_carry_one_piece_through_another(body, monkeypatch):
     assert piece_crossings(guarded.x.numpy(), faces) == 0
     ring = slice(len(_top().rest), None)
     assert float(guarded.x[ring, 1].mean()) < 0.40 - 0.02  # it did fall, onto the top
+    assert guarded.reason == "max_iters"  # it goes on settling
+    with monkeypatch.context() as patch:
+        patch.setattr(newton, "HOLD_ROUNDS", 0)
+        stuck = relax(garment.rest.clone(), cloth, body, max_iters=60)
+    assert stuck.reason == "line_search" and len(stuck.history) < len(guarded.history)
+    assert float(guarded.energy_terms["total"]) < float(stuck.energy_terms["total"])
     monkeypatch.setattr(crossings.PieceGuard, "of", staticmethod(lambda *args: None))
     unguarded = relax(garment.rest.clone(), cloth, body, max_iters=60)
     assert piece_crossings(unguarded.x.numpy(), faces) > 0
@@ -397,6 +405,8 @@ def test_piece_guard_flags_only_new_crossings_between_pieces_of_one_garment():
     through[4:, 1] = -0.1  # one corner above the first triangle's plane, two below: it pierces it
     one = PieceGuard.of(faces, torch.tensor([0, 0]), 6, 1)
     assert one is not None and one.pairs(apart).size == 0 and one.pairs(through).size == 1
-    assert one.new_crossings(through, one.pairs(apart)).tolist() == [True]
-    assert one.new_crossings(through, one.pairs(through)).tolist() == [False]
+    fresh = one.new_pairs(through, one.pairs(apart))
+    assert fresh.tolist() == [[0, 1]] and one.garments(fresh).tolist() == [True]
+    assert one.vertices(fresh, 6).all()
+    assert one.new_pairs(through, one.pairs(through)).size == 0
     assert PieceGuard.of(faces, torch.tensor([0, 1]), 6, 2) is None  # each garment in one piece

@@ -41,6 +41,10 @@ Method (projected Newton, float64 throughout):
    than ten times (the penalty's distance field has kinks where the closest body feature
    switches, e.g. in concave regions), a Newton step on the vertices out of contact, with the
    contact vertices held, is searched instead.
+6. Pieces (`crossings`): a trial that makes a face of one piece of a multi-piece garment
+   intersect a face of another piece where they did not is rejected too (the energy has no
+   contact between pieces, and does not see a piece that is already through another), and the
+   step searched instead also holds the corners of those faces.
 
 Stopping: converged when, for every garment, the residual force (max over vertices not in
 contact of ‖F_int + F_contact‖ / (m_i g)) is below ``tol`` and the relative energy change of the
@@ -48,7 +52,7 @@ last iteration is below ``energy_tol``; otherwise at ``max_iters``, ``time_budge
 line search cannot decrease the energy any more.
 
 Modules: `newton` (the loop and `relax`), `linalg` (assembly and sparse solves), `ipc` (the
-ipctk barrier), `results` (what `relax` returns).
+ipctk barrier), `crossings` (the guard of the pieces), `results` (what `relax` returns).
 """
 
 from physdrape.physics.oracle.ipc import DEFAULT_BARRIER_STIFFNESS, DEFAULT_DHAT

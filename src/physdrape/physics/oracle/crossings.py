@@ -6,7 +6,9 @@ once a step has carried a face through a face of another piece, nothing pushes i
 lower-energy equilibrium with the pieces crossed would become the reference every drape is
 measured against. `PieceGuard` lets the line search refuse such a step: a trial that makes two
 faces of different pieces of one garment intersect where they did not is rejected, as a trial
-that moves a vertex into the body is.
+that moves a vertex into the body is, and the corners of those faces are held in the step
+searched instead (the physics has no contact between pieces: where two pieces touch, the rest of
+the garment still settles, the touching parts staying where they are, as if they stuck).
 """
 
 from __future__ import annotations
@@ -54,11 +56,21 @@ class PieceGuard:
         keep = (self.face_garment[i] == self.face_garment[j]) & (self.face_piece[i] != self.face_piece[j])
         return np.sort(i[keep] * len(self.faces) + j[keep])
 
-    def new_crossings(self, x: Tensor, known: np.ndarray) -> Tensor:
-        """(G,) bool: the garments with a crossing pair at x (ΣV, 3) that is not among `known`
-        (`pairs` of the state the step starts from)."""
+    def new_pairs(self, x: Tensor, known: np.ndarray) -> np.ndarray:
+        """The face pairs (K, 2) int64 that cross two pieces of one garment at x (ΣV, 3) and are
+        not among `known` (`pairs` of the state the step starts from)."""
         codes = self.pairs(x)
         fresh = codes[~np.isin(codes, known)]
+        return np.stack([fresh // len(self.faces), fresh % len(self.faces)], axis=1)
+
+    def garments(self, pairs: np.ndarray) -> Tensor:
+        """(G,) bool: the garments that `pairs` (K, 2) (faces) lie on."""
         out = np.zeros(self.num_garments, bool)
-        out[self.face_garment[fresh // len(self.faces)]] = True
+        out[self.face_garment[pairs[:, 0]]] = True
+        return torch.from_numpy(out)
+
+    def vertices(self, pairs: np.ndarray, num_verts: int) -> Tensor:
+        """(ΣV,) bool: the corners of the faces of `pairs` (K, 2)."""
+        out = np.zeros(num_verts, bool)
+        out[self.faces[pairs.ravel()].ravel()] = True
         return torch.from_numpy(out)

@@ -53,6 +53,10 @@ from physdrape.physics.oracle.results import IterationRecord, OracleResult
 #: 1 cm let a polish of male_casualsuit05 cross pieces; 3 mm: none of the suits' polishes.
 FOLLOW_MOVE = 0.003
 
+#: How many times a step is searched again with more vertices held, where the trials keep making
+#: new faces of one piece cross another (`_Newton.step`).
+HOLD_ROUNDS = 3
+
 
 class ContactMode(str, enum.Enum):
     """How the body holds the garment up: cubic penalty on signed distances, or the IPC barrier."""
@@ -281,6 +285,7 @@ class _Newton:
         accepted = skip.clone()
         x_new = x.clone()
         crossed = self.pieces.pairs(x) if self.pieces is not None else None
+        self.blocked = torch.zeros(x.shape[0], dtype=torch.bool)  # corners of the faces a trial made cross
         for _ in range(self.max_line_search):
             trial = x + alpha[vg][:, None] * p
             e_c_t, inside_t = self.trial_contact(trial)
@@ -289,7 +294,11 @@ class _Newton:
             bad = torch.zeros(G, dtype=torch.int64).index_add_(0, self.sample_garment, new_inside) > 0
             ok = (e_t <= energy + 1e-4 * alpha * slope) & ~bad & ~accepted
             if crossed is not None and bool((ok & self.pieces.multi).any()):
-                ok &= ~self.pieces.new_crossings(trial, crossed)
+                fresh = self.pieces.new_pairs(trial, crossed)
+                if len(fresh):
+                    crossing = self.pieces.garments(fresh) & ok
+                    ok &= ~crossing
+                    self.blocked |= self.pieces.vertices(fresh, x.shape[0]) & crossing[vg]
             if bool(ok.any()):
                 take = ok[vg]
                 x_new[take] = trial[take]
@@ -304,20 +313,28 @@ class _Newton:
         """Line search along p, per garment; garments in `done` stay put. Where it finds no step,
         or only one backtracked more than ten times (the penalty's distance field has kinks where
         the closest body feature switches, e.g. in concave regions), a Newton step on the vertices
-        out of contact, contact vertices held, is searched instead. Returns the new positions,
-        the step lengths (G,) (0 where none was taken) and whether any garment moved."""
+        out of contact, contact vertices held, is searched instead, with the corners of the faces
+        that the rejected trials made cross another piece held too (`PieceGuard`; as often as
+        that holds more, up to `HOLD_ROUNDS` times). Returns the new positions, the step lengths
+        (G,) (0 where none was taken) and whether any garment moved."""
         vg = self.vg
         x_new, alpha, accepted, shrink = self.line_search(x, p, grad, energy, st.inside, done)
-        failed = (~accepted | (shrink < 1e-3)) & ~done
-        if bool(failed.any()):
-            fixed = st.contact | ~failed[vg]
-            if not bool(fixed.all()):
-                p_free = torch.from_numpy(_solve_fixed(lower, diag_pos, rhs, fixed.numpy(), self.linear)).reshape(-1, 3)
-                x_free, alpha_free, acc_free, _ = self.line_search(x, p_free, grad, energy, st.inside, ~failed)
-                take = (acc_free & failed)
-                x_new[take[vg]] = x_free[take[vg]]
-                alpha = torch.where(take, alpha_free, alpha)
-                accepted |= take
+        held = st.contact | self.blocked
+        for _ in range(HOLD_ROUNDS):
+            failed = (~accepted | (shrink < 1e-3)) & ~done
+            fixed = held | ~failed[vg]
+            if not bool(failed.any()) or bool(fixed.all()):
+                break
+            p_free = torch.from_numpy(_solve_fixed(lower, diag_pos, rhs, fixed.numpy(), self.linear)).reshape(-1, 3)
+            x_free, alpha_free, acc_free, _ = self.line_search(x, p_free, grad, energy, st.inside, ~failed)
+            take = (acc_free & failed)
+            x_new[take[vg]] = x_free[take[vg]]
+            alpha = torch.where(take, alpha_free, alpha)
+            shrink = torch.where(take, torch.ones_like(shrink), shrink)
+            accepted |= take
+            if not bool((self.blocked & ~held).any()):
+                break  # nothing more to hold: another round would search the same step
+            held = held | self.blocked
         alpha = torch.where(accepted & ~done, alpha, torch.zeros_like(alpha))
         return x_new, alpha, bool((accepted & ~done).any())
 
