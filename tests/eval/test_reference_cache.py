@@ -104,6 +104,26 @@ def test_the_key_of_a_following_layer_order_names_how_often_the_oracle_searches_
     assert keys["fixed"][0] == keys["fixed"][1] and keys["follows"][0] != keys["follows"][1]
 
 
+def test_the_key_of_a_garment_of_several_pieces_names_how_the_oracle_keeps_them_apart(monkeypatch):
+    """A garment of two pieces keys its entry by the oracle's guard against crossed pieces (its
+    hold rounds); a garment of one piece, which the guard never touches, does not."""
+    import physdrape.eval.reference_cache as reference_cache
+
+    settings = oracle_settings(CONFIG, CONTACT)
+    one = sheet_on_box()
+    verts, faces = grid_sheet(5, 5, width=0.2, height=0.2)
+    two_pieces = np.concatenate([verts, verts + np.array([0.0, 0.01, 0.0])]) + np.array([0.4, 0.503, -0.1])
+    batch = GarmentBatch.pack([Garment.from_mesh(two_pieces, np.concatenate([faces, faces + len(verts)]))])
+    two = DrapeInput(batch, Cloth.build(batch), batch.rest.clone(), one.bodies, torch.zeros_like(batch.vert_garment))
+    keys = {}
+    for name, inst in (("one", one), ("two", two)):
+        before = reference_key(inst, inst.x_init, settings)
+        monkeypatch.setattr(reference_cache, "HOLD_ROUNDS", reference_cache.HOLD_ROUNDS + 1)
+        keys[name] = (before, reference_key(inst, inst.x_init, settings))
+        monkeypatch.undo()
+    assert keys["one"][0] == keys["one"][1] and keys["two"][0] != keys["two"][1]
+
+
 def test_a_changed_setting_runs_the_oracle_again(tmp_path):
     batch, cache = sheet_on_box(), ReferenceCache(tmp_path)
     skinned_oracle(batch, None, CONFIG, CONTACT, cache)

@@ -7,8 +7,8 @@ depends on: the start positions, the garment (rest positions, faces, every per-e
 coefficient of its material, its grip, stitches and layer order: the whole `Cloth`), the posed
 body (vertices, faces) and the oracle's settings (contact model, stiffness, margin, tolerance,
 iteration cap, wall-time budget, dtype; for a garment whose layer pairs the oracle completes as
-it goes, how far a vertex moves before it searches them again), with `CACHE_FORMAT` and the
-physdrape version. Change
+it goes, how far a vertex moves before it searches them again; for a garment of several pieces,
+how the oracle keeps them from crossing), with `CACHE_FORMAT` and the physdrape version. Change
 any of them and the entry is missed; `relax`'s code is not in the digest: bump `CACHE_FORMAT`
 when its results change.
 
@@ -33,7 +33,8 @@ import torch
 import physdrape
 from physdrape.atomic import write_bytes, write_text
 from physdrape.model import DrapeInput
-from physdrape.physics.oracle.newton import FOLLOW_MOVE
+from physdrape.physics.oracle.crossings import PieceGuard
+from physdrape.physics.oracle.newton import FOLLOW_MOVE, HOLD_ROUNDS
 
 __all__ = ["CACHE_FORMAT", "ReferenceCache", "reference_key"]
 
@@ -56,6 +57,10 @@ def reference_key(batch: DrapeInput, start: torch.Tensor, settings: dict) -> str
     layers = batch.cloth.layers
     if layers is not None and layers.follows:  # when the oracle searches the layer pairs again
         head["layer_search_move_m"] = FOLLOW_MOVE
+    cloth = batch.cloth
+    if PieceGuard.of(cloth.faces, cloth.face_garment, cloth.num_verts, cloth.num_garments) is not None:
+        # the line search refuses steps that cross pieces, holding those faces' corners after
+        head["piece_guard"] = {"hold_rounds": HOLD_ROUNDS}
     digest.update(json.dumps(head, sort_keys=True).encode())
     tensors = {"start": start, "garment.rest": batch.garments.rest, "garment.faces": batch.garments.faces,
                "body.verts": batch.bodies.verts, "body.faces": batch.bodies.faces, "body_index": batch.body_index}
