@@ -37,8 +37,8 @@ def fit_one(path: str, units: str, iters: int, time_budget: float) -> dict:
     torch.set_num_threads(1)
     from physdrape.api import fit_garment
     from physdrape.api.placement import unit_scale
-    from physdrape.geometry.intersections import self_intersecting_faces
     from physdrape.garments.mhclo import read_mhclo
+    from physdrape.geometry.intersections import self_intersecting_faces
     from physdrape.geometry.mesh import read_mesh
 
     t0 = time.perf_counter()

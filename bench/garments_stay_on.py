@@ -54,8 +54,8 @@ from physdrape.atomic import write_text
 from physdrape.body.anny_body import PHENOTYPE_NAMES
 from physdrape.eval.report import finite_or_none
 from physdrape.garments.closures import panel_overlaps
-from physdrape.geometry.intersections import piece_crossings
 from physdrape.garments.pieces import garment_parts
+from physdrape.geometry.intersections import piece_crossings
 from physdrape.provenance import provenance
 
 BODIES = (("slim", 0.1, "relaxed"), ("average", 0.5, "random:2"), ("heavy", 0.9, "relaxed"))

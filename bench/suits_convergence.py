@@ -41,8 +41,8 @@ from physdrape.checkpoint import load_model
 from physdrape.eval import evaluate as ev
 from physdrape.eval.config import EvalConfig
 from physdrape.eval.instances import makehuman_instances
-from physdrape.geometry.intersections import piece_crossings
 from physdrape.garments.pieces import garment_parts
+from physdrape.geometry.intersections import piece_crossings
 from physdrape.model import Variant
 from physdrape.physics.forces import energy_terms
 

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 import torch
 
+from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
+from physdrape.geometry.garment import vertex_normals as torch_vertex_normals
 from physdrape.geometry.intersections import (
     piece_crossings,
     ray_hit_distances,
     self_intersecting_faces,
     self_intersecting_pairs,
 )
-from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
-from physdrape.geometry.garment import vertex_normals as torch_vertex_normals
 
 
 def _cube(half=0.1):

@@ -36,11 +36,11 @@ import numpy as np
 from physdrape.garments.body_fields import BodyFields, body_fields
 from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.clipping import clip_mesh, fill_crease_holes
-from physdrape.geometry.intersections import ray_hit_distances
 from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.garments.remesh import remesh
 from physdrape.garments.shrink_wrap import shrink_wrap
 from physdrape.garments.validate import GarmentError, validate_garment
+from physdrape.geometry.intersections import ray_hit_distances
 
 __all__ = [
     "GarmentCategory",

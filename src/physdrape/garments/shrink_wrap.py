@@ -12,8 +12,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from physdrape.garments.body_fields import BodyFields
-from physdrape.geometry.intersections import self_intersecting_faces
 from physdrape.garments.numpy_geometry import vertex_normals
+from physdrape.geometry.intersections import self_intersecting_faces
 from physdrape.geometry.topology import boundary_edges, undirected_edges, vertex_adjacency
 
 __all__ = ["shrink_wrap"]

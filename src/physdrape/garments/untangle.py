@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from physdrape.geometry.intersections import self_intersecting_pairs
 from physdrape.garments.numpy_geometry import BodyDistance, vertex_normals
+from physdrape.geometry.intersections import self_intersecting_pairs
 from physdrape.geometry.topology import undirected_edges, vertex_adjacency
 
 __all__ = ["UntangleInfo", "untangle_garment"]

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from physdrape.garments.canonical import canonical_body
-from physdrape.geometry.intersections import self_intersecting_faces
 from physdrape.garments.numpy_geometry import BodyDistance
+from physdrape.geometry.intersections import self_intersecting_faces
 from physdrape.geometry.mesh import MAX_GARMENT_EXTENT_M, MeshError, face_areas
 from physdrape.geometry.topology import (
     boundary_loops,

@@ -53,8 +53,7 @@ from physdrape.physics.oracle.results import IterationRecord, OracleResult
 #: 1 cm let a polish of male_casualsuit05 cross pieces; 3 mm: none of the suits' polishes.
 FOLLOW_MOVE = 0.003
 
-#: How many times a step is searched again with more vertices held, where the trials keep making
-#: new faces of one piece cross another (`_Newton.step`).
+#: How often `_Newton.step` searches again with more held, while its trials make pieces cross.
 HOLD_ROUNDS = 3
 
 
@@ -128,6 +127,7 @@ class _Newton:
         self.follows = cloth.layers is not None and cloth.layers.follows  # layer pairs found as it goes
         # a step may not carry a face of one piece through another piece (`oracle.crossings`)
         self.pieces = PieceGuard.of(cloth.faces, cloth.face_garment, cloth.num_verts, G)
+        self.blocked = torch.zeros(cloth.num_verts, dtype=torch.bool)  # set by each `line_search`
 
     def follow_layers(self, x: Tensor) -> None:
         """Find the layer order's pairs again at x (`physics.layers.followed`; `self.follows`)."""
