@@ -409,4 +409,5 @@ def test_piece_guard_flags_only_new_crossings_between_pieces_of_one_garment():
     assert fresh.tolist() == [[0, 1]] and one.garments(fresh).tolist() == [True]
     assert one.vertices(fresh, 6).all()
     assert one.new_pairs(through, one.pairs(through)).size == 0
+    assert one.known(apart) is one.known(apart) and one.known(through).size == 1  # kept per tensor
     assert PieceGuard.of(faces, torch.tensor([0, 1]), 6, 2) is None  # each garment in one piece

@@ -39,6 +39,7 @@ class PieceGuard:
         pieces = {(int(g), int(p)) for g, p in zip(self.face_garment, self.face_piece)}
         counts = np.bincount([g for g, _ in pieces], minlength=num_garments)
         self.multi = torch.from_numpy(counts > 1)  # (G,) garments of several pieces
+        self._known: tuple[Tensor, np.ndarray] | None = None  # `known`'s last positions and pairs
 
     @staticmethod
     def of(faces: Tensor, face_garment: Tensor, num_verts: int, num_garments: int) -> PieceGuard | None:
@@ -56,9 +57,16 @@ class PieceGuard:
         keep = (self.face_garment[i] == self.face_garment[j]) & (self.face_piece[i] != self.face_piece[j])
         return np.sort(i[keep] * len(self.faces) + j[keep])
 
+    def known(self, x: Tensor) -> np.ndarray:
+        """`pairs` at the positions a step starts from, kept for the next call with the same
+        tensor x (a step's line searches, the first and those with vertices held, all start there)."""
+        if self._known is None or self._known[0] is not x:
+            self._known = (x, self.pairs(x))
+        return self._known[1]
+
     def new_pairs(self, x: Tensor, known: np.ndarray) -> np.ndarray:
         """The face pairs (K, 2) int64 that cross two pieces of one garment at x (ΣV, 3) and are
-        not among `known` (`pairs` of the state the step starts from)."""
+        not among `known` (`known` of the state the step starts from)."""
         codes = self.pairs(x)
         fresh = codes[~np.isin(codes, known)]
         return np.stack([fresh // len(self.faces), fresh % len(self.faces)], axis=1)

@@ -284,7 +284,7 @@ class _Newton:
         alpha0 = alpha.clone()
         accepted = skip.clone()
         x_new = x.clone()
-        crossed = self.pieces.pairs(x) if self.pieces is not None else None
+        crossed = self.pieces.known(x) if self.pieces is not None else None
         self.blocked = torch.zeros(x.shape[0], dtype=torch.bool)  # corners of the faces a trial made cross
         for _ in range(self.max_line_search):
             trial = x + alpha[vg][:, None] * p
