@@ -28,6 +28,7 @@ from physdrape.physics.contact import (
     plane_distance,
     query_samples,
     sample_index,
+    samples_at,
     to_vertices,
 )
 
@@ -52,6 +53,15 @@ def _band(radius=0.152, seed=0, rings=3, segments=20) -> tuple[Garment, torch.Te
 def _planes(body, x, faces):
     q = query_samples(x, faces, body, None)
     return q.closest, q.normal, q.signed_distance
+
+
+def test_samples_at_are_those_rows_of_the_samples():
+    garment, x = _band()
+    faces = garment.faces
+    num_samples = x.shape[0] + faces.shape[0]
+    rows = torch.tensor([0, num_samples - 1, x.shape[0], x.shape[0] - 1, 5, x.shape[0] + 7, 5])
+    assert torch.equal(samples_at(x, faces, rows), contact_samples(x, faces)[rows])
+    assert samples_at(x, faces, rows[:0]).shape == (0, 3)
 
 
 def _plane_energy(x, faces, closest, normal):

@@ -56,6 +56,17 @@ def contact_samples(x: Tensor, faces: Tensor) -> Tensor:
     return torch.cat([x, (corners[0] + corners[1] + corners[2]) / 3.0])
 
 
+def samples_at(x: Tensor, faces: Tensor, rows: Tensor) -> Tensor:
+    """`contact_samples`(x, faces)[rows] (R, 3) without forming the other samples: rows (R,) int
+    index the V + F samples (a vertex below V, a face's centroid from V on)."""
+    num_verts = x.shape[0]
+    face = (rows - num_verts).clamp_min(0)
+    corners = faces.index_select(0, face)
+    centroid = (x.index_select(0, corners[:, 0]) + x.index_select(0, corners[:, 1])
+                + x.index_select(0, corners[:, 2])) / 3.0
+    return torch.where((rows < num_verts)[:, None], x.index_select(0, rows.clamp_max(num_verts - 1)), centroid)
+
+
 def sample_index(per_vertex: Tensor, faces: Tensor) -> Tensor:
     """A per-vertex label (V,) (garment, body) extended to the samples (V + F,): a centroid takes
     its face's first corner's."""
@@ -230,10 +241,10 @@ class PlaneFollower:
             x64 = self._x[0]
 
             def points32(doubt: Tensor) -> Tensor:
-                return contact_samples(x64, self.faces)[rows[doubt]].to(torch.float32)
+                return samples_at(x64, self.faces, rows[doubt]).to(torch.float32)
 
             def known(doubt: Tensor) -> Tensor:
-                return bound.select(rows[doubt]).sign(contact_samples(x64, self.faces)[rows[doubt]])
+                return bound.select(rows[doubt]).sign(samples_at(x64, self.faces, rows[doubt]))
 
             sign = self.bodies.winding_sign(points32, self.body[rows], self.face[rows].to(torch.int64),
                                             (flags & 2).bool(), (flags & 4).bool(),
@@ -242,7 +253,7 @@ class PlaneFollower:
                 flipped = rows[sign[0][sign[2] < 0]]
                 if flipped.numel():
                     self.normal[flipped] = -self.normal[flipped]
-                    points = contact_samples(x64, self.faces)[flipped]
+                    points = samples_at(x64, self.faces, flipped)
                     after = ((points - self.closest[flipped]) * self.normal[flipped]).sum(-1)
                     energy = partial(contact_energy, stiffness=self.stiffness, margin=self.margin)
                     change[flipped] = energy(after) - energy(self._before[flipped])
