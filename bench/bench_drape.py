@@ -1,7 +1,7 @@
 """End-to-end drape timings through the public API, optionally side by side with an earlier commit.
 
     .venv/bin/python bench/bench_drape.py [--repeats 7] [--rounds 2] [--base COMMIT] [--cold]
-        [--devices cpu cuda] [--out results/bench_drape]
+        [--devices cpu cuda] [--compile] [--out results/bench_drape]
 
 Rows (the bundled model, T = 15, one torch thread, medians):
 - warm drape, same pose: `Draper.drape("default")` again in the same process (the default
@@ -23,7 +23,10 @@ own imports renamed), and the two Drapers take turns call by call (the order swa
 repeat), so that both see the same machine at the same moments: on a shared machine the speed
 drifts by tens of percent over minutes, which separate processes turn into noise larger than
 the change measured. The table gives both medians and the median of the per-call ratios. With
-`--cold` the base's CLI runs as `python -m physdrape_base.cli` from the export.
+`--cold` the base's CLI runs as `python -m physdrape_base.cli` from the export. With `--compile`
+this commit's Draper runs its network compiled (`Draper(compile_network=True)`; compiled by the
+warm-up calls, outside the timing), the base's as the base runs it: `--base HEAD --compile` times
+the compilation's gain alone.
 Writes <out>.md and <out>.json with the command and the commit.
 """
 
@@ -53,7 +56,8 @@ ROWS = {
 TARGETS = {"same_pose": 150.0, "x_init": 20.0, "new_pose": 250.0, "batch8": 100.0}
 
 
-def worker(repeats: int, device: str, threads: int, packages: list[str]) -> dict[str, dict[str, list[float]]]:
+def worker(repeats: int, device: str, threads: int, packages: list[str],
+           compile_network: bool = False) -> dict[str, dict[str, list[float]]]:
     """Time the rows in this process for each package (its source on sys.path), taking turns call
     by call, and return the samples [ms] per package."""
     import importlib
@@ -64,7 +68,8 @@ def worker(repeats: int, device: str, threads: int, packages: list[str]) -> dict
     drapers = {}
     for package in packages:
         api = importlib.import_module(f"{package}.api")
-        drapers[package] = api.Draper(device=device) if device != "cpu" else api.Draper()
+        options = {"compile_network": True} if compile_network and package == "physdrape" else {}
+        drapers[package] = api.Draper(device=device, **options) if device != "cpu" else api.Draper(**options)
     for draper in drapers.values():
         draper.drape("default")  # fits and caches the skinning transfer, poses the default body
     first = drapers[packages[0]]
@@ -118,10 +123,11 @@ def _python_path(*paths: Path) -> str:
 
 
 def _run_worker(paths: list[Path], packages: list[str], repeats: int, device: str,
-                threads: int) -> dict[str, dict[str, list[float]]]:
+                threads: int, compile_network: bool) -> dict[str, dict[str, list[float]]]:
     env = dict(os.environ, PYTHONPATH=_python_path(*paths), OMP_NUM_THREADS=str(threads))
     proc = subprocess.run([sys.executable, __file__, "--worker", "--repeats", str(repeats), "--device", device,
-                           "--threads", str(threads), "--packages", *packages], env=env, capture_output=True,
+                           "--threads", str(threads), "--packages", *packages,
+                           *(["--compile"] if compile_network else [])], env=env, capture_output=True,
                           text=True, cwd=ROOT, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"the timing process for {packages} failed:\n{proc.stderr[-3000:]}")
@@ -149,13 +155,14 @@ def main() -> None:
     parser.add_argument("--base", default=None, help="an earlier commit to time side by side")
     parser.add_argument("--devices", nargs="+", default=["cpu"], help="cpu and/or cuda (this commit only)")
     parser.add_argument("--cold", action="store_true", help="also time a cold `physdrape drape` (new process)")
+    parser.add_argument("--compile", action="store_true", help="this commit's network compiled (torch.compile)")
     parser.add_argument("--out", default="results/bench_drape")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--device", default="cpu", help=argparse.SUPPRESS)
     parser.add_argument("--packages", nargs="+", default=["physdrape"], help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(worker(args.repeats, args.device, args.threads, args.packages)))
+        print(json.dumps(worker(args.repeats, args.device, args.threads, args.packages, args.compile)))
         return
 
     import torch
@@ -165,7 +172,8 @@ def main() -> None:
 
     devices = [d for d in args.devices if d == "cpu" or torch.cuda.is_available()]
     skipped = [d for d in args.devices if d not in devices]
-    this, base = "this commit", f"base {args.base[:10]}" if args.base else None
+    this = "this commit, compiled network" if args.compile else "this commit"
+    base = f"base {args.base[:10]}" if args.base else None
     samples: dict[str, dict[str, list[float]]] = {}
     ratios: dict[str, list[float]] = {}
     load = []
@@ -176,7 +184,7 @@ def main() -> None:
                 paired = base_dir is not None and device == "cpu"
                 packages = ["physdrape", "physdrape_base"] if paired else ["physdrape"]
                 got = _run_worker([ROOT / "src", *([base_dir] if paired else [])], packages, args.repeats, device,
-                                  args.threads)
+                                  args.threads, args.compile)
                 load.append(os.getloadavg()[0])
                 for package, name in zip(packages, [this, base]):
                     for row, values in got[package].items():

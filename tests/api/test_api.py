@@ -238,3 +238,16 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
     calls.clear()
     [res] = held.drape("default")
     assert calls == [False, False, False, False] and res.metrics["b2g_percent"] == 0.0  # t = 0, 3, 6, 9
+
+
+def test_compiled_network_drapes_as_the_eager_one(anny_body, tiny_checkpoint):
+    """Draper(compile_network=True) runs the network compiled (`EncodeProcessDecode.compile_inference`)
+    and drapes what the eager Draper drapes, up to float rounding."""
+    eager = Draper(tiny_checkpoint, steps=2, body=anny_body)
+    compiled = Draper(tiny_checkpoint, steps=2, body=anny_body, compile_network=True)
+    assert eager.model.gnn._compiled is None and compiled.model.gnn._compiled is not None
+    [want] = eager.drape("default")
+    [got] = compiled.drape("default")
+    assert compiled.model.gnn._compiled is not None  # it compiled, not fell back
+    np.testing.assert_allclose(got.verts, want.verts, atol=1e-5)
+    assert got.metrics["b2g_percent"] == 0.0

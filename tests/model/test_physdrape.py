@@ -174,6 +174,45 @@ def test_network_in_pieces_equals_the_whole_graph(two_tubes):
     assert network_parts(offsets) == [0, offsets[-1]] and network_parts([0]) == [0]
 
 
+def test_compiled_network_computes_what_the_eager_one_does(two_tubes):
+    """`compile_inference`: with no gradient recorded the network runs compiled (one compilation
+    for every garment size and for a batch in pieces), with the eager output up to the rounding
+    of fused float operations; where a gradient is recorded it runs eagerly."""
+    torch.manual_seed(0)
+    model = PhysDrape(ModelConfig(latent=8, blocks=3, levels=1)).eval()
+    network = model.gnn
+    batch = make_input(two_tubes, [0.15, 0.13])
+    nodes, edges, graph = model.graph_inputs(batch)
+    offsets = batch.garments.vert_offsets.tolist()
+    with torch.no_grad():
+        eager = [network(nodes, edges, graph), network(nodes, edges, graph, parts=offsets)]
+    network.compile_inference()
+    with torch.no_grad():
+        compiled = [network(nodes, edges, graph), network(nodes, edges, graph, parts=offsets)]
+    assert network._compiled is not None  # compiled, not fallen back to eager
+    for got, want in zip(compiled, eager):
+        torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
+    out = network(nodes, edges, graph)  # recording a gradient: the eager graph, differentiable
+    assert out.requires_grad and torch.equal(out.detach(), eager[0])
+
+
+def test_a_network_that_cannot_compile_runs_eagerly(two_tubes, monkeypatch):
+    torch.manual_seed(0)
+    model = PhysDrape(ModelConfig(latent=8, blocks=2)).eval()
+    nodes, edges, graph = model.graph_inputs(make_input(two_tubes, [0.15, 0.13]))
+    with torch.no_grad():
+        want = model.gnn(nodes, edges, graph)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no C++ compiler here")
+
+    monkeypatch.setattr(torch, "compile", lambda fn, **kwargs: broken)
+    model.gnn.compile_inference()
+    with torch.no_grad(), pytest.warns(UserWarning, match="could not compile the network.*no C\\+\\+ compiler"):
+        got = model.gnn(nodes, edges, graph)
+    assert torch.equal(got, want) and model.gnn._compiled is None
+
+
 def test_zero_initialised_output_starts_at_x_init(two_tubes):
     model = PhysDrape(ModelConfig(latent=8, blocks=1, zero_init_output=True, variant=Variant.GNN_ONLY)).eval()
     batch = make_input(two_tubes, [0.15, 0.13])

@@ -38,14 +38,7 @@ from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, relax
 from physdrape.physics.metrics import drape_metrics, faces_inside
-from physdrape.pipeline import (
-    DEFAULT_DTYPE,
-    POSE_DTYPE,
-    DrapePipeline,
-    PosedBodies,
-    Template,
-    select,
-)
+from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, PosedBodies, Template, select
 from physdrape.progress import iteration_progress
 
 #: Posed body batches a `Draper` keeps, with their surfaces, for drapes on the same shape and poses.
@@ -101,12 +94,16 @@ class Draper:
         arm_contact_tolerance: arm vertices (of those the check samples, every 4th) allowed
             inside the body before a pose is refused: a hand resting on a hip is contact, an arm
             swung into the chest is not.
+        compile_network: run the network compiled by `torch.compile` (`EncodeProcessDecode.
+            compile_inference`): the first drape compiles it (seconds to tens of seconds), every
+            later one runs it faster; for a Draper that drapes many garments.
     """
 
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None, passes: int | None = None,
                  dtype: torch.dtype = DEFAULT_DTYPE, check_pose: bool = True, arm_contact_tolerance: int = 20,
                  smpl_model: str | Path | None = None, smpl_gender: str = "neutral",
-                 device: str | torch.device = "cpu", follow_planes: bool | None = None) -> None:
+                 device: str | torch.device = "cpu", follow_planes: bool | None = None,
+                 compile_network: bool = False) -> None:
         if not isinstance(steps, int) or steps < 0:
             raise DrapeError(f"steps must be a non-negative integer, got {steps!r}")
         if dtype not in (torch.float32, torch.float64):
@@ -129,6 +126,8 @@ class Draper:
         self.model.to(self.device)
         if follow_planes is not None:
             self.model.set_eval_planes(follow_planes)
+        if compile_network:
+            self.model.gnn.compile_inference()
         self.model_config = self.model.config
         self.checkpoint = path
         self.steps = steps

@@ -262,7 +262,7 @@ def cmd_drape(args: argparse.Namespace) -> int:
     # 2. drape (the API validates garments, units, placement, bodies, poses and the checkpoint)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender, device=process_device(args.device),
-                    follow_planes=args.follow_planes, passes=args.passes)
+                    follow_planes=args.follow_planes, passes=args.passes, compile_network=args.compile)
     common = {"shape": shape, "units": args.units, "allow_detached": args.allow_detached, "sizing": args.sizing,
               "grip": args.grip, "closures": args.closures, "layers": args.layers}
     what = "draping" + (" and polishing with the physics oracle (--refine)" if args.refine else "")
@@ -394,6 +394,9 @@ def add_parser(sub) -> None:
                         "between body queries (default: the checkpoint's; the bundled model follows them)")
     r.add_argument("--passes", type=int, help="network passes before the solver, each looking again at the garment "
                                               "the passes before it moved (default: the checkpoint's)")
+    r.add_argument("--compile", action="store_true", help="run the network compiled by torch.compile: the first "
+                   "drape compiles it (seconds to tens of seconds), later ones run it faster; for many garments, poses "
+                   "or a --manifest")
     r.add_argument("--refine", action="store_true", help="polish with the physics oracle (projected Newton, slow)")
     r.add_argument("--batch-size", type=int, default=8, help="garments per model call (default 8)")
     r.add_argument("--out", default="physdrape_out", help="output directory (default ./physdrape_out)")

@@ -62,7 +62,7 @@ def cmd_manifest(args: argparse.Namespace) -> int:
         raise ManifestError(manifest.path, manifest.bad)
     draper = Draper(args.checkpoint, steps=15 if args.steps is None else args.steps, smpl_model=args.smpl_model,
                     smpl_gender=args.smpl_gender, device=process_device(args.device),
-                    follow_planes=args.follow_planes, passes=args.passes)
+                    follow_planes=args.follow_planes, passes=args.passes, compile_network=args.compile)
     out = Path(args.out).expanduser()
     try:
         summary = run_manifest(draper, manifest, out, rank=rank, world_size=world_size, outputs=args.outputs,

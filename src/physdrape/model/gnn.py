@@ -13,6 +13,8 @@ level l − 1.
 from __future__ import annotations
 
 import itertools
+import threading
+import warnings
 from collections.abc import Callable, Iterator
 
 import torch
@@ -73,6 +75,10 @@ def _linear(inputs: Tensor, weight: Tensor, bias: Tensor | None = None) -> Tenso
     return nn.functional.linear(inputs, weight, bias)
 
 
+#: One network compiles at a time (`EncodeProcessDecode.compile_inference`: batch groups drape on parallel threads).
+_COMPILE_LOCK = threading.Lock()
+
+
 def level_schedule(blocks: int, levels: int) -> list[int]:
     """The graph level of each processor block: V-cycles 0, 1, …, levels, …, 1, 0, … (all 0 when
     levels = 0)."""
@@ -117,6 +123,8 @@ class EncodeProcessDecode(nn.Module):
         if zero_init_output:  # the untrained network outputs 0: training starts from its input state
             nn.init.zeros_(self.decoder[-1].weight)
             nn.init.zeros_(self.decoder[-1].bias)
+        self._compiled: Callable | None = None  # `compile_inference`'s encoders and blocks, for inference
+        self._compile_pending = False  # compiled, not yet called
         self.look_back_schedule = (level_schedule(look_back_blocks, min(levels, (look_back_blocks - 1) // 2))
                                    if look_back_blocks else [])
         if look_back_blocks:
@@ -126,6 +134,18 @@ class EncodeProcessDecode(nn.Module):
             self.look_back_decoder = mlp(latent, latent, out, layers=mlp_layers, layer_norm=False)
             nn.init.zeros_(self.look_back_decoder[-1].weight)
             nn.init.zeros_(self.look_back_decoder[-1].bias)
+
+    def compile_inference(self) -> None:
+        """Run the encoders and processor blocks compiled by `torch.compile` wherever no gradient
+        is recorded (inference; training stays eager): TorchInductor fuses the blocks' small
+        matrix products, LayerNorms, ReLUs and gathers into a few loops. With dynamic shapes one
+        compilation serves every garment size. The first call compiles (tens of seconds;
+        TorchInductor caches its kernels on disk, so later processes take seconds); where it fails
+        (no C++ compiler, no Triton for a GPU), a warning says so and the network runs eagerly. The
+        compiled graph computes what the eager one does, up to the rounding of fused float
+        operations."""
+        self._compiled = torch.compile(self._encoded_and_processed, dynamic=True)
+        self._compile_pending = True
 
     def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None = None) -> Tensor:
         """parts: vertex bounds [0, b₁, …, N] of pieces no edge crosses (whole garments of a
@@ -162,14 +182,35 @@ class EncodeProcessDecode(nn.Module):
         """Per piece (`forward`'s parts), one after the other, its node latents, its edge latents
         per level and its graph after the encoders and the processor blocks (a generator: a
         caller that decodes each piece as it comes holds one piece's latents at a time)."""
+        run = self._encoded_and_processed if self._compiled is None or torch.is_grad_enabled() else self._run_compiled
         if parts is None or len(parts) <= 2:
-            yield self._encoded_and_processed(nodes, edges, graph)
+            yield run(nodes, edges, graph)
             return
         per_level = torch.split(edges, graph.edge_counts)
         for start, stop in itertools.pairwise(parts):
             sub, chosen = graph.part(start, stop)
             piece_edges = torch.cat([e[k] for e, k in zip(per_level, chosen)])
-            yield self._encoded_and_processed(nodes[start:stop], piece_edges, sub)
+            yield run(nodes[start:stop], piece_edges, sub)
+
+    def _run_compiled(self, nodes: Tensor, edges: Tensor,
+                      graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
+        """`_encoded_and_processed` compiled (`compile_inference`); the first call compiles, one thread at a
+        time, and falls back to eager for good where compiling fails."""
+        if self._compile_pending:
+            with _COMPILE_LOCK:
+                if self._compile_pending:
+                    try:
+                        out = self._compiled(nodes, edges, graph)
+                    except Exception as exc:  # noqa: BLE001 - any backend failure: run eagerly instead
+                        warnings.warn(f"torch.compile could not compile the network ({type(exc).__name__}: "
+                                      f"{str(exc).splitlines()[0] if str(exc) else ''}); it runs eagerly", stacklevel=2)
+                        self._compiled = None
+                        out = self._encoded_and_processed(nodes, edges, graph)
+                    self._compile_pending = False
+                    return out
+        if self._compiled is None:
+            return self._encoded_and_processed(nodes, edges, graph)
+        return self._compiled(nodes, edges, graph)
 
     def _encoded_and_processed(self, nodes: Tensor, edges: Tensor,
                                graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
