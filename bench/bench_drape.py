@@ -173,6 +173,9 @@ def main() -> None:
     devices = [d for d in args.devices if d == "cpu" or torch.cuda.is_available()]
     skipped = [d for d in args.devices if d not in devices]
     this = "this commit, compiled network" if args.compile else "this commit"
+    if args.base:  # a name (HEAD, a branch) as the commit it names, which the file records
+        args.base = subprocess.run(["git", "rev-parse", "--verify", f"{args.base}^{{commit}}"], cwd=ROOT, check=True,
+                                   capture_output=True, text=True).stdout.strip()
     base = f"base {args.base[:10]}" if args.base else None
     samples: dict[str, dict[str, list[float]]] = {}
     ratios: dict[str, list[float]] = {}
