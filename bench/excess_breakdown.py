@@ -158,13 +158,19 @@ def main() -> None:
         inside, margin = c["lift inside"], c["lift margin"]
         lines.append(f"| {t} | {c['no handler']['ratio']:.4f} | {inside['ratio']:.4f} | {inside['vertices']:.1f} | "
                      f"{margin['ratio']:.4f} | {margin['vertices']:.0f} | {c['model']['ratio']:.4f} |")
-    lines += ["", "Per instance, the model's E_total over its reference:", "",
+    lines += ["", "Per instance, the model's E_total over its reference, and in brackets the instance's share of the "
+              "set's excess at that T (its E_total − reference over the sum of those over the instances: the set's "
+              "E / ref weighs each instance by its reference energy):", "",
               "| instance | category | reference [J] | " + " | ".join(f"T = {t}" for t in args.steps)
               + " | no handler, T = " + str(args.steps[-1]) + " |",
               "|---|---|---:|" + "---:|" * (len(args.steps) + 1)]
+    excess = {t: sum(row["steps"][str(t)]["model"]["energy_total"] - row["reference"]["energy_total"] for row in rows)
+              for t in args.steps}
     for row in rows:
         ref = row["reference"]["energy_total"]
-        cells = [f"{row['steps'][str(t)]['model']['energy_total'] / ref:.4f}" for t in args.steps]
+        cells = [f"{row['steps'][str(t)]['model']['energy_total'] / ref:.4f} "
+                 f"({100 * (row['steps'][str(t)]['model']['energy_total'] - ref) / excess[t]:.0f} %)"
+                 for t in args.steps]
         last = row["steps"][str(args.steps[-1])]["no handler"]["energy_total"] / ref
         lines.append(f"| {row['garment']} | {row['category']} | {ref:.4f} | " + " | ".join(cells) + f" | {last:.4f} |")
     write_report(args.out, lines, {"command": command, "provenance": prov, "eval": args.eval,
