@@ -7,6 +7,8 @@ first `--instances`. Per instance, on one torch thread by default:
   (default 1…15); a point is (X_init + model wall time, E_total of the drape), the model time
   being the median of `--repeats` timed calls after a warm-up and X_init's the median of as many
   builds (`InstanceInput.init_s`), as a user pays (the same accounting as `bench/bench_speed.py`);
+  with `--compile` its network compiled by `torch.compile` (`Draper(compile_network=True)`'s;
+  compiled by its first warm-up call, outside the timing);
 - **solver alone**: `PhysDrape.physics_only` at the same T (Δx = 0, f̂ = 0, then the handler),
   timed the same way;
 - **oracle**: `physdrape.eval.evaluate.run_oracle` (`physics.relax`, projected Newton, penalty
@@ -440,6 +442,7 @@ def main(argv=None) -> int:
                         help='the evaluation\'s cache of oracle results ("" = do not look)')
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run: 1 instance, T ∈ {1,2,4,8,15}, 1 repeat, 10 s budgets, no refinement")
+    parser.add_argument("--compile", action="store_true", help="the model's network compiled by torch.compile")
     parser.add_argument("--out", default="results", help="folder of time_to_quality.{json,md,png}")
     args = parser.parse_args(argv)
     if args.quick:
@@ -462,6 +465,8 @@ def main(argv=None) -> int:
     args.oracle_config = dataclasses.replace(eval_config, oracle_budget_s=args.oracle_budget,
                                              oracle_max_iters=args.oracle_max_iters)
     model, info = load_model(args.checkpoint, variant=Variant.FULL)
+    if args.compile:
+        model.gnn.compile_inference()
     contact = Contact.of(model)
     cache = ReferenceCache(args.reference_cache) if args.reference_cache else None
     instances = split_instances(eval_config, get_anny_body())
