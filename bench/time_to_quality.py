@@ -466,7 +466,7 @@ def main(argv=None) -> int:
                                              oracle_max_iters=args.oracle_max_iters)
     model, info = load_model(args.checkpoint, variant=Variant.FULL)
     if args.compile:
-        model.gnn.compile_inference()
+        model.gnn.compile_network()
     contact = Contact.of(model)
     cache = ReferenceCache(args.reference_cache) if args.reference_cache else None
     instances = split_instances(eval_config, get_anny_body())

@@ -241,7 +241,7 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
 
 
 def test_compiled_network_drapes_as_the_eager_one(anny_body, tiny_checkpoint):
-    """Draper(compile_network=True) runs the network compiled (`EncodeProcessDecode.compile_inference`)
+    """Draper(compile_network=True) runs the network compiled (`EncodeProcessDecode.compile_network`)
     and drapes what the eager Draper drapes, up to float rounding."""
     eager = Draper(tiny_checkpoint, steps=2, body=anny_body)
     compiled = Draper(tiny_checkpoint, steps=2, body=anny_body, compile_network=True)

@@ -192,7 +192,7 @@ def test_train_init_from_overrides_the_configs_and_a_recipe_refuses_it(tmp_path,
     seen = {}
 
     class Recorder:
-        def __init__(self, config, source, run_dir, device=None):
+        def __init__(self, config, source, run_dir, device=None, compile_network=False):
             seen.update(config=config, run_dir=run_dir)
 
         def run(self, resume=False):

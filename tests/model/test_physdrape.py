@@ -175,25 +175,32 @@ def test_network_in_pieces_equals_the_whole_graph(two_tubes):
 
 
 def test_compiled_network_computes_what_the_eager_one_does(two_tubes):
-    """`compile_inference`: with no gradient recorded the network runs compiled (one compilation
-    for every garment size and for a batch in pieces), with the eager output up to the rounding
-    of fused float operations; where a gradient is recorded it runs eagerly."""
+    """`compile_network`: the network runs compiled (one compilation for every garment size and
+    for a batch in pieces, one for inference and one recording gradients), with the eager output
+    and gradients up to the rounding of fused float operations."""
     torch.manual_seed(0)
-    model = PhysDrape(ModelConfig(latent=8, blocks=3, levels=1)).eval()
+    model = PhysDrape(ModelConfig(latent=8, blocks=3, levels=1))
     network = model.gnn
     batch = make_input(two_tubes, [0.15, 0.13])
     nodes, edges, graph = model.graph_inputs(batch)
     offsets = batch.garments.vert_offsets.tolist()
-    with torch.no_grad():
-        eager = [network(nodes, edges, graph), network(nodes, edges, graph, parts=offsets)]
-    network.compile_inference()
-    with torch.no_grad():
-        compiled = [network(nodes, edges, graph), network(nodes, edges, graph, parts=offsets)]
-    assert network._compiled is not None  # compiled, not fallen back to eager
+    weights = torch.randn(nodes.shape[0], network.decoder[-1].out_features)
+
+    def run():
+        with torch.no_grad():
+            outs = [network(nodes, edges, graph), network(nodes, edges, graph, parts=offsets)]
+        network.zero_grad()
+        (network(nodes, edges, graph, parts=offsets) * weights).sum().backward()
+        return outs, [p.grad.clone() for p in network.parameters()]
+
+    eager, eager_grads = run()
+    network.compile_network()
+    compiled, compiled_grads = run()
+    assert network._compiled is not None and not network._compile_pending  # both modes compiled
     for got, want in zip(compiled, eager):
         torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
-    out = network(nodes, edges, graph)  # recording a gradient: the eager graph, differentiable
-    assert out.requires_grad and torch.equal(out.detach(), eager[0])
+    for got, want in zip(compiled_grads, eager_grads):
+        torch.testing.assert_close(got, want, rtol=1e-3, atol=1e-5)
 
 
 def test_a_network_that_cannot_compile_runs_eagerly(two_tubes, monkeypatch):
@@ -207,7 +214,7 @@ def test_a_network_that_cannot_compile_runs_eagerly(two_tubes, monkeypatch):
         raise RuntimeError("no C++ compiler here")
 
     monkeypatch.setattr(torch, "compile", lambda fn, **kwargs: broken)
-    model.gnn.compile_inference()
+    model.gnn.compile_network()
     with torch.no_grad(), pytest.warns(UserWarning, match="could not compile the network.*no C\\+\\+ compiler"):
         got = model.gnn(nodes, edges, graph)
     assert torch.equal(got, want) and model.gnn._compiled is None

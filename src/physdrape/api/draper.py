@@ -95,7 +95,7 @@ class Draper:
             inside the body before a pose is refused: a hand resting on a hip is contact, an arm
             swung into the chest is not.
         compile_network: run the network compiled by `torch.compile` (`EncodeProcessDecode.
-            compile_inference`): the first drape compiles it (seconds to tens of seconds), every
+            compile_network`): the first drape compiles it (seconds to tens of seconds), every
             later one runs it faster; for a Draper that drapes many garments.
     """
 
@@ -127,7 +127,7 @@ class Draper:
         if follow_planes is not None:
             self.model.set_eval_planes(follow_planes)
         if compile_network:
-            self.model.gnn.compile_inference()
+            self.model.gnn.compile_network()
         self.model_config = self.model.config
         self.checkpoint = path
         self.steps = steps

@@ -42,7 +42,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
     try:
         trainer = Trainer(config, DrapeSource(config.data, model=config.model), args.run_dir,
-                          device=process_device(args.device))
+                          device=process_device(args.device), compile_network=args.compile)
         trainer.run(resume=args.resume)
         if distributed:
             dist.barrier()  # no rank tears gloo down while another still talks to it
@@ -68,7 +68,8 @@ def _train_recipe(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     run_recipe(args.recipe, args.run_dir, source=lambda config: DrapeSource(config.data, model=config.model),
-               command=shlex.join(["physdrape", *sys.argv[1:]]), resume=args.resume, device=args.device)
+               command=shlex.join(["physdrape", *sys.argv[1:]]), resume=args.resume, device=args.device,
+               compile_network=args.compile)
     return 0
 
 
@@ -96,5 +97,7 @@ def add_parser(sub) -> None:
     train.add_argument("--instances-only", action="store_true", help="build (or extend) the config's instance cache "
                        "(data.instances) and stop, e.g. before starting several runs that share it")
     train.add_argument("--threads", type=int, default=0, help="torch threads per process (0: torch's default)")
+    train.add_argument("--compile", action="store_true", help="run the network's forward and backward compiled by "
+                       "torch.compile (compiled at the first step: tens of seconds)")
     add_device_argument(train)
     train.set_defaults(func=cmd_train, interrupted=_interrupted)

@@ -75,7 +75,7 @@ def _linear(inputs: Tensor, weight: Tensor, bias: Tensor | None = None) -> Tenso
     return nn.functional.linear(inputs, weight, bias)
 
 
-#: One network compiles at a time (`EncodeProcessDecode.compile_inference`: batch groups drape on parallel threads).
+#: One network compiles at a time (`EncodeProcessDecode.compile_network`: batch groups drape on parallel threads).
 _COMPILE_LOCK = threading.Lock()
 
 
@@ -123,8 +123,8 @@ class EncodeProcessDecode(nn.Module):
         if zero_init_output:  # the untrained network outputs 0: training starts from its input state
             nn.init.zeros_(self.decoder[-1].weight)
             nn.init.zeros_(self.decoder[-1].bias)
-        self._compiled: Callable | None = None  # `compile_inference`'s encoders and blocks, for inference
-        self._compile_pending = False  # compiled, not yet called
+        self._compiled: Callable | None = None  # `compile_network`'s encoders and blocks
+        self._compile_pending: set[bool] = set()  # the grad modes not yet run compiled (each compiles)
         self.look_back_schedule = (level_schedule(look_back_blocks, min(levels, (look_back_blocks - 1) // 2))
                                    if look_back_blocks else [])
         if look_back_blocks:
@@ -135,17 +135,17 @@ class EncodeProcessDecode(nn.Module):
             nn.init.zeros_(self.look_back_decoder[-1].weight)
             nn.init.zeros_(self.look_back_decoder[-1].bias)
 
-    def compile_inference(self) -> None:
-        """Run the encoders and processor blocks compiled by `torch.compile` wherever no gradient
-        is recorded (inference; training stays eager): TorchInductor fuses the blocks' small
-        matrix products, LayerNorms, ReLUs and gathers into a few loops. With dynamic shapes one
-        compilation serves every garment size. The first call compiles (tens of seconds;
-        TorchInductor caches its kernels on disk, so later processes take seconds); where it fails
-        (no C++ compiler, no Triton for a GPU), a warning says so and the network runs eagerly. The
-        compiled graph computes what the eager one does, up to the rounding of fused float
-        operations."""
+    def compile_network(self) -> None:
+        """Run the encoders and processor blocks compiled by `torch.compile` from now on: TorchInductor
+        fuses the blocks' small matrix products, LayerNorms, ReLUs and gathers into a few loops
+        (and, where a gradient is recorded, their backward). With dynamic shapes one compilation
+        serves every garment size; inference and training each compile their own graph on first
+        use (tens of seconds; TorchInductor caches its kernels on disk, so later processes take
+        seconds). Where compiling fails (no C++ compiler, no Triton for a GPU), a warning says so
+        and the network runs eagerly. The compiled graph computes what the eager one does, up to
+        the rounding of fused float operations."""
         self._compiled = torch.compile(self._encoded_and_processed, dynamic=True)
-        self._compile_pending = True
+        self._compile_pending = {False, True}
 
     def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None = None) -> Tensor:
         """parts: vertex bounds [0, b₁, …, N] of pieces no edge crosses (whole garments of a
@@ -182,7 +182,7 @@ class EncodeProcessDecode(nn.Module):
         """Per piece (`forward`'s parts), one after the other, its node latents, its edge latents
         per level and its graph after the encoders and the processor blocks (a generator: a
         caller that decodes each piece as it comes holds one piece's latents at a time)."""
-        run = self._encoded_and_processed if self._compiled is None or torch.is_grad_enabled() else self._run_compiled
+        run = self._encoded_and_processed if self._compiled is None else self._run_compiled
         if parts is None or len(parts) <= 2:
             yield run(nodes, edges, graph)
             return
@@ -194,11 +194,12 @@ class EncodeProcessDecode(nn.Module):
 
     def _run_compiled(self, nodes: Tensor, edges: Tensor,
                       graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
-        """`_encoded_and_processed` compiled (`compile_inference`); the first call compiles, one thread at a
-        time, and falls back to eager for good where compiling fails."""
-        if self._compile_pending:
+        """`_encoded_and_processed` compiled (`compile_network`); the first call in each grad mode
+        compiles, one thread at a time, and falls back to eager for good where compiling fails."""
+        mode = torch.is_grad_enabled()
+        if mode in self._compile_pending:
             with _COMPILE_LOCK:
-                if self._compile_pending:
+                if self._compiled is not None and mode in self._compile_pending:
                     try:
                         out = self._compiled(nodes, edges, graph)
                     except Exception as exc:  # noqa: BLE001 - any backend failure: run eagerly instead
@@ -206,7 +207,7 @@ class EncodeProcessDecode(nn.Module):
                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); it runs eagerly", stacklevel=2)
                         self._compiled = None
                         out = self._encoded_and_processed(nodes, edges, graph)
-                    self._compile_pending = False
+                    self._compile_pending.discard(mode)
                     return out
         if self._compiled is None:
             return self._encoded_and_processed(nodes, edges, graph)

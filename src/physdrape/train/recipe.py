@@ -139,9 +139,10 @@ def logged_wall_s(stage_dir: Path, *, upto: int) -> float:
 
 
 def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable[[TrainConfig], SampleSource],
-               command: str, resume: bool = False, log=print, device: str = "cpu") -> dict:
-    """Train the recipe's stages in order into run_dir (see the module docstring) on `device`;
-    returns the record.
+               command: str, resume: bool = False, log=print, device: str = "cpu",
+               compile_network: bool = False) -> dict:
+    """Train the recipe's stages in order into run_dir (see the module docstring) on `device`
+    (with `compile_network`, each stage's network compiled: `Trainer`); returns the record.
 
     source: builds the sample source of a stage from its config (the CLI: `DrapeSource(config.data, model=config.model)`).
     """
@@ -159,7 +160,8 @@ def run_recipe(recipe_path: str | Path, run_dir: str | Path, *, source: Callable
         stop = min(stage.until or config.optim.steps, config.optim.steps)
         if done < stop:
             log(f"[recipe] stage {stage.name}: {stage.config}, steps {done}..{stop}")
-            Trainer(config, source(config), stage_dir, device=device).run(resume=done > 0, until=stop)
+            Trainer(config, source(config), stage_dir, device=device,
+                    compile_network=compile_network).run(resume=done > 0, until=stop)
         record["stages"].append({"name": stage.name, "config": str(stage.config), "seed": config.optim.seed,
                                  "steps": stop, "schedule_steps": config.optim.steps,
                                  "init_from": config.optim.init_from, "wall_s": logged_wall_s(stage_dir, upto=stop)})

@@ -103,10 +103,13 @@ class Trainer:
     scalars under `run_dir`. Call `run(resume=True)` to continue from the latest checkpoint.
 
     device: where the model trains, "cpu" (the default), "cuda" or "cuda:N"
-    (`physdrape.devices.resolve_device`; a DeviceError says how to fix an unmet CUDA request)."""
+    (`physdrape.devices.resolve_device`; a DeviceError says how to fix an unmet CUDA request).
+    compile_network: the network's forward and backward compiled by `torch.compile`
+    (`EncodeProcessDecode.compile_network`: compiled at the first step)."""
 
     def __init__(self, config: TrainConfig, source: SampleSource, run_dir: str | os.PathLike, *, extra_config: dict | None = None,
-                 progress: bool = True, tensorboard: bool = True, device: str | torch.device = "cpu") -> None:
+                 progress: bool = True, tensorboard: bool = True, device: str | torch.device = "cpu",
+                 compile_network: bool = False) -> None:
         self.device = resolve_device(device)
         self.config = config
         self.source = source
@@ -121,6 +124,8 @@ class Trainer:
         if config.dtype not in ("float32", "float64"):
             raise ValueError(f"TrainConfig.dtype must be 'float32' or 'float64', got {config.dtype!r}")
         self.model = PhysDrape(config.model).to(getattr(torch, config.dtype)).to(self.device)
+        if compile_network:
+            self.model.gnn.compile_network()
         self.generator = torch.Generator().manual_seed(config.optim.seed)
         self.step = 0
         self.ddp = None
