@@ -14,7 +14,8 @@ for every size) and what `displacement: preconditioned` adds to a pass: the solv
 preconditioner built at X_init and applied to the output once (the same for every size). With
 `--compile` every size is also timed with its network compiled by `torch.compile`
 (`EncodeProcessDecode.compile_network`, the same weights; compiled by the warm-up, outside the
-timing), and every row also times a training pass: the network's forward and the backward of a
+timing; each network a graph of its own for torch._dynamo, whose limit of graphs per function
+the script raises to fit), and every row also times a training pass: the network's forward and the backward of a
 loss on its output (what a training step spends in the network). Writes
 <out>.md and <out>.json with the command, the commit and the load average.
 """
@@ -57,6 +58,8 @@ def main() -> None:
     parser.add_argument("--out", default="results/bench_network")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.compile:  # every size's network is a graph of its own (two with the backward): more than dynamo's default 8
+        torch._dynamo.config.recompile_limit = 8 * len(args.sizes)
     batch = problem(1, args.verts)
     models = {}
     for size in args.sizes:
