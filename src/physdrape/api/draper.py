@@ -94,9 +94,9 @@ class Draper:
         arm_contact_tolerance: arm vertices (of those the check samples, every 4th) allowed
             inside the body before a pose is refused: a hand resting on a hip is contact, an arm
             swung into the chest is not.
-        compile_network: run the network compiled by `torch.compile` (`EncodeProcessDecode.
-            compile_network`): the first drape compiles it (seconds to tens of seconds), every
-            later one runs it faster; for a Draper that drapes many garments.
+        compile_network: run the network compiled by `torch.compile`
+            (`EncodeProcessDecode.compile_network`): the first drape compiles it (seconds to tens
+            of seconds), every later one runs it faster; for a Draper that drapes many garments.
     """
 
     def __init__(self, checkpoint: str | Path | None = None, *, steps: int = 15, body=None, passes: int | None = None,
