@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from device_params import needs_compiler
 
 from physdrape import api, checkpoint
 from physdrape.api import DrapeError, Draper
@@ -240,6 +241,7 @@ def test_follow_planes_overrides_the_checkpoints_setting(anny_body, tiny_checkpo
     assert calls == [False, False, False, False] and res.metrics["b2g_percent"] == 0.0  # t = 0, 3, 6, 9
 
 
+@needs_compiler
 def test_compiled_network_drapes_as_the_eager_one(anny_body, tiny_checkpoint):
     """Draper(compile_network=True) runs the network compiled (`EncodeProcessDecode.compile_network`)
     and drapes what the eager Draper drapes, up to float rounding."""

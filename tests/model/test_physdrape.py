@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+from device_params import needs_compiler
 from drape_cases import make_input, tube
 
 from physdrape.config_io import ConfigError, from_mapping, to_mapping
@@ -174,6 +175,7 @@ def test_network_in_pieces_equals_the_whole_graph(two_tubes):
     assert network_parts(offsets) == [0, offsets[-1]] and network_parts([0]) == [0]
 
 
+@needs_compiler
 def test_compiled_network_computes_what_the_eager_one_does(two_tubes):
     """`compile_network`: the network runs compiled (one compilation for every garment size and
     for a batch in pieces, one for inference and one recording gradients), with the eager output

@@ -4,6 +4,7 @@ import json
 
 import pytest
 import torch
+from device_params import needs_compiler
 
 from physdrape.model import ModelConfig
 from physdrape import checkpoint as ckpt
@@ -35,6 +36,7 @@ def test_short_training_run_lowers_the_loss(tmp_path, solver):
     assert (tmp_path / "metrics.jsonl").is_file()
 
 
+@needs_compiler
 def test_training_with_the_compiled_network_lowers_the_loss(tmp_path):
     """Trainer(compile_network=True): the network's forward and backward compiled
     (`EncodeProcessDecode.compile_network`); the same fixed problems' loss falls."""
