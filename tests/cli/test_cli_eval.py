@@ -31,9 +31,10 @@ def test_flags_parse():
     args = parser().parse_args(["eval", "--checkpoint", "c", "--out", "o", "--instances", "3", "--seed", "7",
                                 "--oracle-budget", "5", "--no-oracle", "--ablation", "gnn=a", "--ablation",
                                 "gnn+solver=b", "--split-dir", "s", "--max-garments", "2", "--makehuman", "m",
-                                "--no-oracle-refine", "--oracle-max-iters", "500"])
+                                "--no-oracle-refine", "--oracle-max-iters", "500", "--oracle-settle-steps", "30"])
     assert args.instances == 3 and args.seed == 7 and args.oracle_budget == 5.0 and args.no_oracle
     assert args.no_oracle_refine and args.makehuman_max_verts == 0 and args.oracle_max_iters == 500
+    assert args.oracle_settle_steps == 30
     assert dict(args.ablation) == {"gnn": "a", "gnn+solver": "b"}
     assert args.split_dir == "s" and args.max_garments == 2 and args.makehuman == "m"
 
@@ -46,7 +47,8 @@ def test_bad_ablation_name_is_a_usage_error(capsys):
 
 @pytest.mark.parametrize("flags, message", [(["--instances", "0"], "instances must be ≥ 1"),
                                            (["--makehuman-max-verts", "-1"], "makehuman_max_verts must be ≥ 0"),
-                                           (["--oracle-max-iters", "0"], "oracle_max_iters must be ≥ 1")])
+                                           (["--oracle-max-iters", "0"], "oracle_max_iters must be ≥ 1"),
+                                           (["--oracle-settle-steps", "-1"], "oracle_settle_steps must be ≥ 0")])
 def test_bad_flag_values_exit_2_with_the_message(tmp_path, capsys, flags, message):
     from physdrape.cli import main
 

@@ -70,6 +70,7 @@ def all_summaries(res):
     yield from ((k, row["summary"]) for k, row in data["rows"].items())
     yield "oracle", data["oracle"]["summary"]
     yield "oracle_refined", data["oracle_refined"]["summary"]
+    yield "oracle_settled", data["oracle_settled"]["summary"]
     yield "reference", data["reference"]["summary"]
     yield "x_init", data["x_init"]["summary"]
 
@@ -109,32 +110,54 @@ def test_ratio_to_the_reference_is_the_ratio_of_the_json_numbers(results, tmp_pa
     assert md_path.read_text() == render_markdown(results)
 
 
-def test_reference_is_the_lower_energy_oracle_result_and_refining_never_raises_the_energy(results):
+def test_reference_is_the_lowest_energy_oracle_result_and_refining_never_raises_the_energy(results, tiny):
     data = results["sets"]["test"]
     model = data["rows"]["physdrape_t15"]["per_instance"]
     oracle, refined = data["oracle"]["per_instance"], data["oracle_refined"]["per_instance"]
-    for m, a, b, ref in zip(model, oracle, refined, data["reference"]["per_instance"], strict=True):
+    settled = data["oracle_settled"]["per_instance"]
+    for m, a, b, c, ref in zip(model, oracle, refined, settled, data["reference"]["per_instance"], strict=True):
         # relax descends from the model's drape, so the polished drape is at most as high as it
         assert b["energy_total"] <= m["energy_total"] + 1e-12
         assert b["wall_s"] == pytest.approx(b["oracle_wall_s"] + m["wall_s"])
-        assert ref["energy_total"] == min(a["energy_total"], b["energy_total"])
-        assert ref["source"] == ("oracle_refined" if b["energy_total"] < a["energy_total"] else "oracle")
+        assert c["wall_s"] > c["oracle_wall_s"]  # with the T = 60 drape it starts from
+        lowest = min(a["energy_total"], b["energy_total"], c["energy_total"])
+        assert ref["energy_total"] == lowest
+        assert ref["source"] == next(name for name, r in (("oracle", a), ("oracle_refined", b), ("oracle_settled", c))
+                                     if r["energy_total"] == lowest)
     sources = [r["source"] for r in data["reference"]["per_instance"]]
     assert data["reference"]["summary"]["from_refinement"] == sources.count("oracle_refined")
+    assert data["reference"]["summary"]["from_settled"] == sources.count("oracle_settled")
     md = render_markdown(results)
-    assert "| Oracle refining PhysDrape (T=15) (" in md and "| Reference (lower E_total per instance;" in md
+    assert "| Oracle refining PhysDrape (T=15) (" in md and "| Oracle from PhysDrape (T=60) (" in md
+    assert "| Reference (lowest E_total per instance;" in md and "from T=60)" in md
+    assert tiny.oracle_settle_steps == 60
+    assert "from the model's drape at T = 60 (settled)" in results["oracle_definition"]
+
+
+def test_the_reference_picks_the_lowest_of_the_oracle_results_earlier_on_ties():
+    from physdrape.eval.summary import reference
+
+    a = [{"energy_total": 1.0}, {"energy_total": 2.0}, {"energy_total": 3.0}]
+    b = [{"energy_total": 1.0}, {"energy_total": 1.5}, {"energy_total": 2.5}]
+    c = [{"energy_total": 0.5}, {"energy_total": 1.5}, {"energy_total": 2.6}]
+    assert [r["source"] for r in reference(a, b, c)] == ["oracle_settled", "oracle_refined", "oracle_refined"]
+    later = [{"energy_total": 1.0}, {"energy_total": 2.5}, {"energy_total": 2.0}]
+    assert [r["source"] for r in reference(a, [], later)] == ["oracle", "oracle", "oracle_settled"]
+    assert [r["source"] for r in reference(a, [])] == ["oracle"] * 3
+    with pytest.raises(ValueError, match="oracle_settled has 2 records for 3 instances"):
+        reference(a, b, c[:2])
 
 
 def test_without_refinement_the_reference_is_the_oracle(checkpoint, anny_body, tiny, results):
-    res = evaluate(checkpoint, replace(tiny, instances=1, oracle_refine=False, reference_cache=None), body=anny_body,
-                   command="test", log=lambda _: None)
+    res = evaluate(checkpoint, replace(tiny, instances=1, oracle_refine=False, oracle_settle_steps=0,
+                                       reference_cache=None), body=anny_body, command="test", log=lambda _: None)
     data = res["sets"]["test"]
     # no cache: the oracle ran again, to the numbers of the first run (max_iters stops it)
     assert res["reference_cache"] is None and not data["oracle"]["per_instance"][0]["cached"]
     skip = ("cached", "wall_s", "history")
     assert ({k: v for k, v in data["oracle"]["per_instance"][0].items() if k not in skip}
             == {k: v for k, v in results["sets"]["test"]["oracle"]["per_instance"][0].items() if k not in skip})
-    assert data["oracle_refined"] is None
+    assert data["oracle_refined"] is None and data["oracle_settled"] is None
     assert data["reference"]["summary"]["strain"] == data["oracle"]["summary"]["strain"]
     assert data["oracle"]["summary"]["strain_ratio"] == pytest.approx(1.0)
 
@@ -179,7 +202,7 @@ def test_per_category_means_and_ratios_are_those_of_the_categorys_instances(resu
         members = entry["instances"]
         assert [data["instances"][i]["category"] for i in members] == [category] * len(members)
         ref = {name: np.mean([reference[i][name] for i in members]) for name in ("strain", "energy_total")}
-        for key in [*data["rows"], "x_init", "skinned", "oracle", "oracle_refined", "reference"]:
+        for key in [*data["rows"], "x_init", "skinned", "oracle", "oracle_refined", "oracle_settled", "reference"]:
             per_instance = (data[key] if key in data else data["rows"][key])["per_instance"]
             row = entry["rows"][key]
             for name in ("strain", "energy_total", "b2g_percent"):
@@ -199,7 +222,7 @@ def test_per_category_means_and_ratios_are_those_of_the_categorys_instances(resu
 def test_with_two_poses_the_report_has_a_table_by_pose(results):
     data = copy.deepcopy(results["sets"]["test"])
     rows = {key: (data[key] if key in data else data["rows"][key])["per_instance"]
-            for key in [*data["rows"], "x_init", "skinned", "oracle", "oracle_refined", "reference"]}
+            for key in [*data["rows"], "x_init", "skinned", "oracle", "oracle_refined", "oracle_settled", "reference"]}
     data["poses"] = by_pose([0, 1], rows, data["reference"]["per_instance"])  # as if the two were poses 0 and 1
     assert [entry["instances"] for entry in data["poses"].values()] == [[0], [1]]
     for (pose, entry), i in zip(data["poses"].items(), (0, 1)):

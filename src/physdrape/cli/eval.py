@@ -29,6 +29,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             instances=args.instances, poses_per_garment=args.poses_per_garment, seed=args.seed,
             oracle=not args.no_oracle, oracle_budget_s=args.oracle_budget, oracle_tol=args.oracle_tol,
             oracle_max_iters=args.oracle_max_iters, oracle_refine=not args.no_oracle_refine,
+            oracle_settle_steps=args.oracle_settle_steps,
             reference_cache=None if args.no_reference_cache else (args.reference_cache or ""),
             split_dir=args.split_dir or "", max_garments=args.max_garments, makehuman_dir=args.makehuman or "",
             makehuman_max_verts=args.makehuman_max_verts, threads=args.threads,
@@ -63,6 +64,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-oracle", action="store_true", help="skip the oracle (no ratio columns)")
     p.add_argument("--no-oracle-refine", action="store_true",
                    help="do not also run the oracle from the PhysDrape (T=15) drape (ratios then use the oracle alone)")
+    p.add_argument("--oracle-settle-steps", type=int, default=60,
+                   help="also run the oracle from the model's drape at this T, which can end in a lower equilibrium "
+                        "(the reference is the lowest oracle result; 0: not)")
     cache = p.add_mutually_exclusive_group()
     cache.add_argument("--reference-cache", metavar="DIR",
                        help="folder of the oracle results from the skinned start, reused by later evaluations of the "

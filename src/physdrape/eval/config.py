@@ -28,7 +28,10 @@ class EvalConfig:
     `instances` is None; seed: of the body shapes/poses; oracle: run the oracle; oracle_budget_s:
     its wall-time budget per instance [s]; oracle_tol: its residual tolerance; oracle_max_iters:
     its iteration cap; oracle_refine: also run the oracle from the PhysDrape (T=15) drape and
-    measure against the better of the two; reference_cache: folder of the cached oracle results
+    measure against the better of the two; oracle_settle_steps: also run the oracle from the
+    model's drape at this T (0: not), a drape settled further along the slow modes, from which the
+    oracle can end in a lower equilibrium; the reference is then the lowest of the oracle results;
+    reference_cache: folder of the cached oracle results
     from the skinned start ("": `default_reference_cache()`, None: no cache); split_dir /
     max_garments: the garment split ("" = default cache) and its first N test garments (0 = all);
     makehuman_dir: CC0 MakeHuman garments (.mhclo), "" = skip; makehuman_instances: bodies per
@@ -45,6 +48,7 @@ class EvalConfig:
     oracle_tol: float = 1e-2
     oracle_max_iters: int = 200
     oracle_refine: bool = True
+    oracle_settle_steps: int = 60
     reference_cache: str | None = ""
     split_dir: str = ""
     max_garments: int = 0
@@ -69,5 +73,8 @@ class EvalConfig:
             raise ValueError(f"EvalConfig.makehuman_max_verts must be ≥ 0 (0: no cap), got {self.makehuman_max_verts}")
         if self.oracle_max_iters < 1:
             raise ValueError(f"EvalConfig.oracle_max_iters must be ≥ 1, got {self.oracle_max_iters}")
+        if self.oracle_settle_steps < 0:
+            raise ValueError(f"EvalConfig.oracle_settle_steps must be ≥ 0 (0: no such oracle run), "
+                             f"got {self.oracle_settle_steps}")
         if not self.oracle_budget_s > 0:
             raise ValueError(f"EvalConfig.oracle_budget_s must be > 0, got {self.oracle_budget_s}")

@@ -132,10 +132,17 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
                "where the oracle starts (a classical solver gets the plain kinematic start, not PhysDrape's pull-back).")
     if has_oracle:
         out.append(f"- **Oracle**: {results['oracle_definition']}.")
+    settle = cfg.get("oracle_settle_steps", 0) if has_oracle else 0
     if cfg.get("oracle_refine") and has_oracle:
         out.append("- **Oracle refining PhysDrape (T=15)**: the oracle started from the model's drape (the refinement "
-                   "mode); its wall time includes the model's. **Reference**: per instance the lower-E_total of the "
-                   "two oracle results, the best equilibrium found from either start.")
+                   "mode); its wall time includes the model's.")
+    if settle:
+        out.append(f"- **Oracle from PhysDrape (T={settle})**: the oracle started from the model's drape at T = "
+                   f"{settle}, settled further along the slow modes (the oracle stops in the equilibrium its start "
+                   "leads to); its wall time includes the model's.")
+    if has_oracle and (cfg.get("oracle_refine") or settle):
+        out.append("- **Reference**: per instance the lowest-E_total of the oracle results, the best equilibrium found "
+                   "from any start.")
     out.append("")
     out.append("Energies are means over instances under the default material; E_total = E_strain + E_bend + E_grav + "
                "contact penalty (what the oracle minimises), plus, for the MakeHuman garments, worn as `Draper.drape` "
@@ -168,15 +175,22 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
         if data.get("oracle_refined"):
             refined = data["oracle_refined"]["summary"]
             rows.append((f"Oracle refining PhysDrape (T=15) ({refined['converged']}/{n} converged)", refined))
+        if data.get("oracle_settled"):
+            settled = data["oracle_settled"]["summary"]
+            rows.append((f"Oracle from PhysDrape (T={settle}) ({settled['converged']}/{n} converged)", settled))
+        if data.get("oracle_refined") or data.get("oracle_settled"):
             reference = data["reference"]["summary"]
-            rows.append((f"Reference (lower E_total per instance; {reference['from_refinement']}/{n} from the "
-                         "refinement)", reference))
+            sources = [f"{reference['from_refinement']}/{n} from the refinement"] if data.get("oracle_refined") else []
+            if data.get("oracle_settled"):
+                sources.append(f"{reference['from_settled']}/{n} from T={settle}")
+            rows.append((f"Reference (lowest E_total per instance; {', '.join(sources)})", reference))
         out += _table(rows, timing=timing, oracle=has_oracle)
         if data.get("categories") and data.get("reference"):
             keyed = ([("Skinned", "skinned")] if "skinned" in data else []) + [("X_init", "x_init")]
             keyed += [(results["row_definitions"][k]["label"], k) for k in results["row_definitions"]]
             keyed += [(label, key) for label, key in (("Oracle from the skinned start", "oracle"),
-                                                      ("Oracle refining PhysDrape (T=15)", "oracle_refined"))
+                                                      ("Oracle refining PhysDrape (T=15)", "oracle_refined"),
+                                                      (f"Oracle from PhysDrape (T={settle})", "oracle_settled"))
                       if data.get(key)]
             out += ["", ("E_total / reference by garment category (row mean over the category's instances over the "
                          "reference's mean over them; instances in brackets):"), ""]

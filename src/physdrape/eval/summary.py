@@ -48,13 +48,20 @@ def oracle_summary(records: list[dict]) -> dict:
     return out
 
 
-def reference(oracle: list[dict], refined: list[dict]) -> list[dict]:
-    """Per instance the oracle result with the lower E_total (ties: the oracle's), tagged with
-    its source ("oracle" or "oracle_refined"); without refinement, the oracle's own records."""
-    if not refined:
-        return [{**r, "source": "oracle"} for r in oracle]
-    return [{**b, "source": "oracle_refined"} if b["energy_total"] < a["energy_total"] else {**a, "source": "oracle"}
-            for a, b in zip(oracle, refined, strict=True)]
+def reference(oracle: list[dict], refined: list[dict], settled: list[dict] | None = None) -> list[dict]:
+    """Per instance the oracle result with the lowest E_total (ties: the earlier of oracle,
+    refined, settled), tagged with its source ("oracle", "oracle_refined" or "oracle_settled");
+    an empty list of results is left out (without either, the oracle's own records)."""
+    candidates = [("oracle", oracle), *((name, recs) for name, recs in (("oracle_refined", refined),
+                                                                        ("oracle_settled", settled or [])) if recs)]
+    for name, recs in candidates[1:]:
+        if len(recs) != len(oracle):
+            raise ValueError(f"{name} has {len(recs)} records for {len(oracle)} instances")
+    out = []
+    for i in range(len(oracle)):
+        name, best = min(((name, recs[i]) for name, recs in candidates), key=lambda c: c[1]["energy_total"])
+        out.append({**best, "source": name})
+    return out
 
 
 def by_category(categories: list[str | None], rows: dict[str, list[dict]], ref: list[dict] | None) -> dict:
