@@ -5,11 +5,13 @@ Run: .venv/bin/python bench/reference_tightness.py [--eval results/eval.json]
      [--checkpoint src/physdrape/assets/models/cpu_default] [--steps 60] [--instances N]
      [--out results/reference_tightness]
 
-The evaluation's reference is per instance the lower E_total of the physics oracle run from the
-skinned garment and the oracle refining the model's T = 15 drape, each stopped where its residual
-over the free vertices and its last relative energy change fall under their tolerances. Cloth
-has many equilibria, and the oracle stops at the one its start leads to: started from a drape
-that settled further (the model at T = `--steps`), it may stop lower. Per instance: the
+An evaluation's reference is per instance the lowest E_total of the physics oracle's runs, each
+stopped where its residual over the free vertices and its last relative energy change fall under
+their tolerances: from the skinned garment and from the model's T = 15 drape, and, since this
+bench showed what it adds (`results/reference_tightness.md`, against the evaluation at 4c4fc6e),
+from the model's T = 60 drape (`EvalConfig.oracle_settle_steps`). Cloth has many equilibria, and
+the oracle stops at the one its start leads to: started from a drape that settled further (the
+model at T = `--steps`), it may stop lower. Per instance: the
 reference, the model's drape at T = `--steps` and the oracle from it (the evaluation's oracle
 settings, from the record `--eval`), each over the reference. The set's rows GNN only, T = 3 and
 T = 15 (as `results/eval.md` gives them: the mean E_total over the references' mean) against the
