@@ -27,8 +27,8 @@ Rows of Table 1, all from ONE checkpoint (the variant is an inference-time switc
 - ``oracle_settled``: the same `relax` started from the model's drape at T =
   `EvalConfig.oracle_settle_steps` (60), a drape settled further along the slow modes (a long
   sleeve sliding down the arm); its wall time includes the model's;
-- ``reference``: per instance the lowest-E_total of the oracle results: the best equilibrium
-  found from any start. The oracle is a local minimiser, and it stops in the equilibrium its
+- ``reference``: per instance the lowest-E_total of the oracle results that converged (none: of
+  all): the best equilibrium found from any start. The oracle is a local minimiser, and it stops in the equilibrium its
   start leads to: from the skinned start it can settle in a higher-energy equilibrium than the
   one near the model's drape, and from the T = 15 drape in a higher one than from a drape settled
   further; the reference is what every ratio is measured against (without the other starts: the
@@ -401,7 +401,7 @@ def evaluate(checkpoint: str | os.PathLike, config: EvalConfig = EvalConfig(), *
                               + ("; the same from the PhysDrape (T=15) drape (refined)" if config.oracle_refine else "")
                               + (f"; the same from the model's drape at T = {config.oracle_settle_steps} (settled)"
                                  if config.oracle_settle_steps else "")
-                              + ("; the reference is per instance the lowest-E_total of these"
+                              + ("; the reference is per instance the lowest-E_total of these that converged"
                                  if config.oracle_refine or config.oracle_settle_steps else ""))
                              if config.oracle else None,
         "published": {"note": PUBLISHED_NOTE, "table1": PUBLISHED_MAIN, "table2": PUBLISHED_ABLATION},

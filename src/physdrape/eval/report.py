@@ -141,8 +141,8 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
                    f"{settle}, settled further along the slow modes (the oracle stops in the equilibrium its start "
                    "leads to); its wall time includes the model's.")
     if has_oracle and (cfg.get("oracle_refine") or settle):
-        out.append("- **Reference**: per instance the lowest-E_total of the oracle results, the best equilibrium found "
-                   "from any start.")
+        out.append("- **Reference**: per instance the lowest-E_total of the oracle results that converged (none: of "
+                   "all), the best equilibrium found from any start.")
     out.append("")
     out.append("Energies are means over instances under the default material; E_total = E_strain + E_bend + E_grav + "
                "contact penalty (what the oracle minimises), plus, for the MakeHuman garments, worn as `Draper.drape` "
@@ -183,7 +183,7 @@ def render_markdown(results: dict, *, timing: bool = True) -> str:
             sources = [f"{reference['from_refinement']}/{n} from the refinement"] if data.get("oracle_refined") else []
             if data.get("oracle_settled"):
                 sources.append(f"{reference['from_settled']}/{n} from T={settle}")
-            rows.append((f"Reference (lowest E_total per instance; {', '.join(sources)})", reference))
+            rows.append((f"Reference (lowest E_total of the converged per instance; {', '.join(sources)})", reference))
         out += _table(rows, timing=timing, oracle=has_oracle)
         if data.get("categories") and data.get("reference"):
             keyed = ([("Skinned", "skinned")] if "skinned" in data else []) + [("X_init", "x_init")]

@@ -49,9 +49,12 @@ def oracle_summary(records: list[dict]) -> dict:
 
 
 def reference(oracle: list[dict], refined: list[dict], settled: list[dict] | None = None) -> list[dict]:
-    """Per instance the oracle result with the lowest E_total (ties: the earlier of oracle,
-    refined, settled), tagged with its source ("oracle", "oracle_refined" or "oracle_settled");
-    an empty list of results is left out (without either, the oracle's own records)."""
+    """Per instance the converged oracle result with the lowest E_total (none converged: the
+    lowest of all; ties: the earlier of oracle, refined, settled), tagged with its source
+    ("oracle", "oracle_refined" or "oracle_settled"); an empty list of results is left out
+    (without either, the oracle's own records). A run stopped on its budget can end lower in a
+    state that is no equilibrium (a collapsed element's force unbounded at a finite energy), so
+    an equilibrium the oracle reached comes first."""
     candidates = [("oracle", oracle), *((name, recs) for name, recs in (("oracle_refined", refined),
                                                                         ("oracle_settled", settled or [])) if recs)]
     for name, recs in candidates[1:]:
@@ -59,7 +62,9 @@ def reference(oracle: list[dict], refined: list[dict], settled: list[dict] | Non
             raise ValueError(f"{name} has {len(recs)} records for {len(oracle)} instances")
     out = []
     for i in range(len(oracle)):
-        name, best = min(((name, recs[i]) for name, recs in candidates), key=lambda c: c[1]["energy_total"])
+        results = [(name, recs[i]) for name, recs in candidates]
+        converged = [c for c in results if c[1].get("converged", True)]
+        name, best = min(converged or results, key=lambda c: c[1]["energy_total"])
         out.append({**best, "source": name})
     return out
 
