@@ -209,6 +209,16 @@ def _oracle_record(result, batch: DrapeInput, contact: Contact) -> dict:
     return {**_metrics(result.x.to(batch.x_init.dtype), batch, contact), **_oracle_fields(result)}
 
 
+def _oracle_from(batch: DrapeInput, start: torch.Tensor, drape_wall_s: float, config: EvalConfig,
+                 contact: Contact) -> dict:
+    """The record of the oracle from one of the model's drapes: its wall time includes the drape's
+    (`drape_wall_s`, the kinematic init and the model), the oracle's own is `oracle_wall_s`."""
+    rec = _oracle_record(run_oracle(batch, config, contact, start), batch, contact)
+    rec["oracle_wall_s"] = rec["wall_s"]
+    rec["wall_s"] += drape_wall_s
+    return rec
+
+
 def skinned_oracle(batch: DrapeInput, start: torch.Tensor | None, config: EvalConfig, contact: Contact,
                    cache: ReferenceCache | None) -> dict:
     """The record of the oracle from `start` (None: X_init), from `cache` when it holds this
@@ -267,18 +277,13 @@ def _evaluate_set(instances: list[Instance], models: dict, rows: dict, config: E
             line += (f": oracle {oracle[-1]['reason']} in {oracle[-1]['wall_s']:.1f} s"
                      + (" (cached)" if oracle[-1]["cached"] else ""))
         if refine:
-            rec = _oracle_record(run_oracle(batch, config, contact, to_refine), batch, contact)
-            rec["oracle_wall_s"] = rec["wall_s"]
-            rec["wall_s"] += per_row[REFINED_ROW][-1]["wall_s"]  # the drape it polishes is part of its cost
-            refined.append(rec)
-            line += f"; refined {rec['reason']} in {rec['oracle_wall_s']:.1f} s"
+            refined.append(_oracle_from(batch, to_refine, per_row[REFINED_ROW][-1]["wall_s"], config, contact))
+            line += f"; refined {refined[-1]['reason']} in {refined[-1]['oracle_wall_s']:.1f} s"
         if settle:
             x, wall = run_model(models[rows[REFINED_ROW][0]], batch, steps=config.oracle_settle_steps)
-            rec = _oracle_record(run_oracle(batch, config, contact, x), batch, contact)
-            rec["oracle_wall_s"] = rec["wall_s"]
-            rec["wall_s"] += init_s + wall  # the drape it starts from is part of its cost
-            settled.append(rec)
-            line += f"; from T = {config.oracle_settle_steps} {rec['reason']} in {rec['oracle_wall_s']:.1f} s"
+            settled.append(_oracle_from(batch, x, init_s + wall, config, contact))
+            line += (f"; from T = {config.oracle_settle_steps} {settled[-1]['reason']} in "
+                     f"{settled[-1]['oracle_wall_s']:.1f} s")
         del batch
         log(f"{line}; peak memory {_peak_rss_gib():.1f} GiB")
     reference = agg.reference(oracle, refined, settled) if oracle else []
