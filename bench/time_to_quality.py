@@ -79,6 +79,7 @@ from physdrape.eval.evaluate import (
 from physdrape.eval.instances import split_instances
 from physdrape.eval.reference_cache import ReferenceCache, reference_key
 from physdrape.eval.report import finite_or_none
+from physdrape.eval.summary import lowest_converged
 from physdrape.model import Variant
 from physdrape.physics import Material
 from physdrape.provenance import provenance
@@ -139,7 +140,7 @@ def instance_run(inst, model, contact, args, eval_config: EvalConfig, cache: Ref
     row = {"garment": inst.garment, "num_verts": inst.num_verts, "body": inst.body_index, "init_s": init_s,
            "skinned_energy": float(total_energy(skinned, batch, contact)[0]),
            "x_init_energy": float(total_energy(batch.x_init, batch, contact)[0]), "methods": {}}
-    candidates = {}
+    candidates = {}  # per oracle run: {"energy_total", "converged"}
     x_last = None
     for key, network in (("model", True), ("solver", False)):
         points, steps_of = [], []
@@ -157,22 +158,22 @@ def instance_run(inst, model, contact, args, eval_config: EvalConfig, cache: Ref
     row["methods"]["oracle"] = {
         "points": [[h.wall, h.energy] for h in result.history], "converged": bool(result.converged),
         "reason": result.reason, "wall_s": time.perf_counter() - t0}
-    candidates["oracle"] = float(total_energy(result.x.to(batch.x_init.dtype), batch, contact)[0])
+    candidates["oracle"] = candidate(result.x, result.converged, batch, contact)
     log(f"  oracle: {result.reason} in {result.wall_time:.1f} s")
     if cache is not None:
         hit = cache.load(reference_key(batch, skinned, oracle_settings(eval_config, contact)), skinned.shape[0])
         if hit is not None:
-            candidates["oracle_cached"] = float(total_energy(hit[0].to(batch.x_init.dtype), batch, contact)[0])
+            candidates["oracle_cached"] = candidate(hit[0], hit[1].get("converged", True), batch, contact)
     if args.refine and x_last is not None:
         refined = run_oracle(batch, args.oracle_config, contact, x_last)
-        candidates["oracle_refined"] = float(total_energy(refined.x.to(batch.x_init.dtype), batch, contact)[0])
+        candidates["oracle_refined"] = candidate(refined.x, refined.converged, batch, contact)
         row["refined"] = {"converged": bool(refined.converged), "reason": refined.reason,
                           "wall_s": refined.wall_time}
         log(f"  oracle refining the T = {args.steps[-1]} drape: {refined.reason} in {refined.wall_time:.1f} s")
     if args.refine and args.settle_steps:
         with torch.no_grad():
             settled = run_oracle(batch, args.oracle_config, contact, model(batch, steps=args.settle_steps).x)
-        candidates["oracle_settled"] = float(total_energy(settled.x.to(batch.x_init.dtype), batch, contact)[0])
+        candidates["oracle_settled"] = candidate(settled.x, settled.converged, batch, contact)
         row["settled"] = {"converged": bool(settled.converged), "reason": settled.reason,
                           "wall_s": settled.wall_time}
         log(f"  oracle from the T = {args.settle_steps} drape: {settled.reason} in {settled.wall_time:.1f} s")
@@ -187,14 +188,20 @@ def instance_run(inst, model, contact, args, eval_config: EvalConfig, cache: Ref
                                  "setup_s": out["vbd_setup_s"], "sim_s": out["vbd_sim_s"]}
         log(f"  VBD: {out['vbd_reason']} after {out['vbd_wall_s']:.1f} s")
 
-    source = min(candidates, key=candidates.get)
-    ref = candidates[source]
+    source, chosen = lowest_converged(list(candidates.items()))
+    ref = chosen["energy_total"]
     row["reference"] = {"energy_total": ref, "source": source, "candidates": candidates}
     for method in row["methods"].values():
         for p in method["points"]:
             p.append(p[1] / ref)
     row["headline"] = headline(row, args.tolerance)
     return row
+
+
+def candidate(x: torch.Tensor, converged: bool, batch, contact) -> dict:
+    """An oracle run's result as a candidate reference: its E_total and whether it converged."""
+    return {"energy_total": float(total_energy(x.to(batch.x_init.dtype), batch, contact)[0]),
+            "converged": bool(converged)}
 
 
 def reach(row: dict, index: int) -> dict:

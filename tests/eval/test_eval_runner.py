@@ -154,6 +154,17 @@ def test_the_reference_picks_the_lowest_of_the_oracle_results_earlier_on_ties():
         reference(a, b, c[:2])
 
 
+def test_one_instances_reference_takes_any_number_of_named_runs_by_the_same_rule():
+    from physdrape.eval.summary import lowest_converged
+
+    runs = [("oracle", {"energy_total": 2.0, "converged": True}), ("cached", {"energy_total": 1.0, "converged": False}),
+            ("refined", {"energy_total": 1.5}), ("settled", {"energy_total": 1.5, "converged": True})]
+    assert lowest_converged(runs)[0] == "refined"  # the stopped lower one skipped, ties to the earlier
+    assert lowest_converged([r for r in runs if r[0] == "cached"])[0] == "cached"  # none converged: the lowest
+    with pytest.raises(ValueError, match="no oracle results"):
+        lowest_converged([])
+
+
 def test_without_refinement_the_reference_is_the_oracle(checkpoint, anny_body, tiny, results):
     res = evaluate(checkpoint, replace(tiny, instances=1, oracle_refine=False, oracle_settle_steps=0,
                                        reference_cache=None), body=anny_body, command="test", log=lambda _: None)

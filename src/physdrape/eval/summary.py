@@ -62,11 +62,19 @@ def reference(oracle: list[dict], refined: list[dict], settled: list[dict] | Non
             raise ValueError(f"{name} has {len(recs)} records for {len(oracle)} instances")
     out = []
     for i in range(len(oracle)):
-        results = [(name, recs[i]) for name, recs in candidates]
-        converged = [c for c in results if c[1].get("converged", True)]
-        name, best = min(converged or results, key=lambda c: c[1]["energy_total"])
+        name, best = lowest_converged([(name, recs[i]) for name, recs in candidates])
         out.append({**best, "source": name})
     return out
+
+
+def lowest_converged(results: list[tuple[str, dict]]) -> tuple[str, dict]:
+    """Of (name, record) oracle results of one instance, the converged one with the lowest
+    "energy_total" (none converged: the lowest of all; ties: the earlier; a record without
+    "converged" counts as converged): `reference`'s rule for one instance."""
+    if not results:
+        raise ValueError("no oracle results to choose a reference from")
+    converged = [c for c in results if c[1].get("converged", True)]
+    return min(converged or results, key=lambda c: c[1]["energy_total"])
 
 
 def by_category(categories: list[str | None], rows: dict[str, list[dict]], ref: list[dict] | None) -> dict:
