@@ -12,8 +12,8 @@ from physdrape.eval.instances import split_instances
 def test_instances(path: str, count: int | None = None) -> tuple[list, list[dict], dict]:
     """(instances, reference records, the record) of the evaluation record at `path`: its test
     instances (`physdrape.eval.instances.split_instances` with its settings, the first `count`,
-    default all) and per instance its reference (the lower E_total of the oracle from the skinned
-    start and the oracle refining the model's T = 15 drape). Exits with a message when the record
+    default all) and per instance its reference as the record holds it (`physdrape.eval.summary.reference`:
+    the lowest E_total among the oracle runs that converged). Exits with a message when the record
     has no test references or this checkout draws other garments."""
     record = json.loads(Path(path).read_text())
     test = record["sets"].get("test", {})

@@ -7,8 +7,8 @@ Run: .venv/bin/python bench/excess_breakdown.py [--eval results/eval.json]
 
 The instances are the evaluation's test instances (`physdrape.eval.instances.split_instances`,
 the first `--instances`, default all of the record's), their references those of the evaluation
-record `--eval` (per instance the lower E_total of the oracle from the skinned start and the
-oracle refining the model's T = 15 drape). Per T, the model (GNN → solver T → handler) and the
+record `--eval` (per instance the lowest E_total among its oracle runs that converged,
+`physdrape.eval.summary.reference`). Per T, the model (GNN → solver T → handler) and the
 same weights without the handler (`Variant.GNN_SOLVER`: the solver's drape before the handler
 pushes the vertices within the margin ε out to δ ε): the set's mean E_total over the references'
 mean, as `results/eval.md` gives it, and the excess over the reference split into the energy
