@@ -8,8 +8,8 @@ Run: .venv/bin/python bench/passes_quality.py [--eval results/eval.json]
 A pass (`ModelConfig.passes`) runs the network again at the garment the passes before it moved,
 its inputs (the solver's first step among them) found again there; `Draper(passes=...)` and
 `physdrape drape --passes` choose it at inference. The instances are the evaluation's test
-instances and their references those of the evaluation record `--eval` (per instance the lower
-E_total of the oracle from the skinned start and the oracle refining the model's T = 15 drape),
+instances and their references those of the evaluation record `--eval` (per instance the lowest
+E_total among its oracle runs that converged, `physdrape.eval.summary.reference`),
 so E / ref reads as `results/eval.md` gives it: the set's mean E_total over the references' mean.
 Per network (default: the bundled one) and number of passes: the GNN-only drape (X_init plus the
 passes' moves) and the model (passes → solver T → handler) at each T, each timed by one call after

@@ -6,8 +6,8 @@ Run: .venv/bin/python bench/suits_convergence.py [--makehuman ../shared/data/mak
      [--steps 3 15 30 60] [--no-polish] [--out results/suits_convergence]
 
 The suits are the instances of `physdrape eval --makehuman` (the same layout, bodies and wear),
-and their reference energies those of the evaluation record `--eval` (per instance the lower
-E_total of the oracle from the skinned start and the oracle refining the model's T = 15 drape).
+and their reference energies those of the evaluation record `--eval` (per instance the lowest
+E_total among its oracle runs that converged, `physdrape.eval.summary.reference`).
 Per suit: GNN only (X_init + Δx: no solver, no handler), and per T the model (GNN → solver →
 handler) and the solver alone (Δx = 0, f̂ = 0, then the handler), each drape's share of X_init's
 excess energy over the reference that it leaves (1 at X_init, 0 at the reference; a suit's E_total
