@@ -187,23 +187,6 @@ def _sheets_order(verts: torch.Tensor, faces: torch.Tensor, n: int, pairs: torch
                       depth=verts[:, 1].clone(), faces=faces)
 
 
-def test_nearest_within_is_the_k_nearest_within_the_radius():
-    """`nearest_within` against scipy's k-d tree."""
-    from scipy.spatial import cKDTree
-
-    from physdrape.physics.layers import nearest_within
-
-    gen = torch.Generator().manual_seed(3)
-    source = torch.rand(200, 3, generator=gen, dtype=torch.float64) * 0.1
-    target = torch.rand(300, 3, generator=gen, dtype=torch.float64) * 0.1
-    i, j = nearest_within(source, target, k=3, radius=0.02, chunk=64)
-    dist, idx = cKDTree(target.numpy()).query(source.numpy(), k=3, distance_upper_bound=0.02)
-    found = torch.from_numpy(dist).isfinite()
-    expected = {(int(a), int(b)) for a, b in zip(torch.arange(200)[:, None].expand(-1, 3)[found],
-                                                 torch.from_numpy(idx)[found])}
-    assert set(zip(i.tolist(), j.tolist())) == expected and len(expected) > 100
-
-
 def test_follow_pairs_hold_each_vertex_on_its_side_of_the_other_sheet():
     """An outer sheet 6 mm over an inner one and shifted by 2.5 cm (half its side): each outer
     vertex over the inner sheet is paired with a corner of the face under it, each inner vertex

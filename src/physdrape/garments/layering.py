@@ -24,7 +24,8 @@ import numpy as np
 import torch
 
 from physdrape.garments.numpy_geometry import BodyDistance
-from physdrape.physics.layers import FOLLOW_NEIGHBOURS, FOLLOW_RADIUS, nearest_within
+from physdrape.geometry.neighbours import nearest_within
+from physdrape.physics.layers import FOLLOW_NEIGHBOURS, FOLLOW_RADIUS
 
 __all__ = ["LayerPairs", "layer_pairs"]
 

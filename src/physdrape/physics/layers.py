@@ -36,10 +36,11 @@ import torch
 from torch import Tensor
 
 from physdrape.geometry.closest_point import closest_point_on_indexed_triangles
+from physdrape.geometry.neighbours import nearest_within
 
 __all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "FOLLOW_ASIDE", "FOLLOW_NEIGHBOURS", "FOLLOW_RADIUS",
            "MIN_LAYER_GAP", "LayerOrder", "follow_pairs", "followed", "layer_energy", "layer_forces",
-           "layer_pair_blocks", "layer_shortfall", "nearest_within", "push_outer_out"]
+           "layer_pair_blocks", "layer_shortfall", "push_outer_out"]
 
 #: Stiffness of one layer pair [N/m].
 DEFAULT_LAYER_STIFFNESS = 1000.0
@@ -138,24 +139,6 @@ class LayerOrder:
 
 
 
-def nearest_within(source: Tensor, target: Tensor, *, k: int = FOLLOW_NEIGHBOURS, radius: float = FOLLOW_RADIUS,
-                   chunk: int = 1024) -> tuple[Tensor, Tensor]:
-    """Each source point's k nearest target points within `radius` [m]: (source index, target
-    index) of every such pair, (P,) each; source (S, 3), target (T, 3). Brute force in chunks of
-    source rows (pieces of a few thousand vertices: a few tens of ms on a CPU core)."""
-    k = min(k, len(target))
-    rows, cols = [], []
-    if k == 0 or len(source) == 0:
-        empty = torch.zeros(0, dtype=torch.int64, device=source.device)
-        return empty, empty.clone()
-    for start in range(0, len(source), chunk):
-        dist, idx = torch.cdist(source[start:start + chunk], target).topk(k, dim=1, largest=False)
-        keep = dist <= radius
-        rows.append(keep.nonzero()[:, 0] + start)
-        cols.append(idx[keep])
-    return torch.cat(rows), torch.cat(cols)
-
-
 def _faces_of_vertices(faces: Tensor, num_verts: int) -> Tensor:
     """Each vertex's faces (num_verts, D) int64, −1 where it has fewer than the most (D)."""
     vertex = faces.reshape(-1)
@@ -212,7 +195,7 @@ def follow_pairs(x: Tensor, layers: LayerOrder) -> tuple[Tensor, Tensor]:
         vp, vq = (piece == p).nonzero()[:, 0], (piece == q).nonzero()[:, 0]
         for points, others in ((vp, vq), (vq, vp)):
             near = torch.full((len(points), FOLLOW_NEIGHBOURS), -1, dtype=torch.int64, device=x.device)
-            a, b = nearest_within(x[points], x[others])
+            a, b = nearest_within(x[points], x[others], k=FOLLOW_NEIGHBOURS, radius=FOLLOW_RADIUS)
             slot = torch.arange(len(a), device=x.device) - torch.searchsorted(a, a)  # a is sorted
             near[a, slot] = others[b]
             has = (near >= 0).any(1)

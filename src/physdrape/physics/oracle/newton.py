@@ -44,12 +44,12 @@ from physdrape.physics.oracle.linalg import (
 from physdrape.physics.oracle.results import IterationRecord, OracleResult
 
 #: How far [m] a vertex moves before a multi-piece garment's layer pairs are searched again at the
-#: current positions (`physics.layers.follow_pairs`, about a third of an iteration's time on a
-#: suit): a pair holds its vertex on its side from the search on, and a vertex reaching another
-#: piece between two searches comes from within this move plus one step (`max_step`), inside the
-#: pairs' 4 cm reach. Far from rest that is a search at nearly every iteration; near rest none,
-#: so the oracle can meet its tolerances (pairs found again change the problem a little each time:
-#: searching every 5 iterations kept the polish of male_casualsuit04 from converging in 120 s).
+#: current positions (`physics.layers.follow_pairs`): a pair holds its vertex on its side from the
+#: search on, and a vertex reaching another piece between two searches comes from within this move
+#: plus one step (`max_step`), inside the pairs' 4 cm reach. Far from rest that is a search at
+#: nearly every iteration; near rest none, so the oracle can meet its tolerances (pairs found again
+#: change the problem a little each time: searching every 5 iterations kept the polish of
+#: male_casualsuit04 from converging in 120 s).
 #: 1 cm let a polish of male_casualsuit05 cross pieces; 3 mm: none of the suits' polishes.
 FOLLOW_MOVE = 0.003
 
