@@ -21,11 +21,12 @@ def _expected(source: torch.Tensor, target: torch.Tensor, k: int, radius: float)
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_the_k_nearest_within_the_radius_in_order(device, dtype):
-    """Random points, a radius that holds fewer than k for some sources and more for most: the
-    same pairs as the k-d tree, in the same order (sorted by source, nearest first)."""
+    """Random points about the origin (negative coordinates too), a radius that holds fewer than
+    k for some sources and more for most: the same pairs as the k-d tree, in the same order
+    (sorted by source, nearest first)."""
     gen = torch.Generator().manual_seed(3)
-    source = (torch.rand(400, 3, generator=gen, dtype=torch.float64) * 0.2).to(dtype)
-    target = (torch.rand(600, 3, generator=gen, dtype=torch.float64) * 0.2).to(dtype)
+    source = ((torch.rand(400, 3, generator=gen, dtype=torch.float64) - 0.5) * 0.2).to(dtype)
+    target = ((torch.rand(600, 3, generator=gen, dtype=torch.float64) - 0.5) * 0.2).to(dtype)
     i, j = nearest_within(source.to(device), target.to(device), k=3, radius=0.02)
     assert i.device.type == device and i.dtype == j.dtype == torch.int64
     expected = _expected(source, target, 3, 0.02)
