@@ -3,9 +3,9 @@
 A multi-piece garment's layer pairs join each vertex of one piece to its few nearest vertices of
 another within a few centimetres (`garments.layering.layer_pairs` on the template,
 `physics.layers.follow_pairs` at the current positions, in the oracle's iterations and every
-drape's measured energy). Comparing every vertex with every other of a suit costs tens of
-milliseconds per pair of pieces; a hash grid of cells as wide as the radius visits only the
-27 cells around a point. One Warp kernel on the CPU and on CUDA: per source point, the
+drape's measured energy). Comparing every vertex with every other costs the product of the
+pieces' sizes; a hash grid of cells as wide as the radius visits only the 27 cells around a
+point. One Warp kernel on the CPU and on CUDA: per source point, the
 candidates of those cells within the radius, kept sorted by distance in its own row of the
 outputs (k is small: an insertion sort).
 """

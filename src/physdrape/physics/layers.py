@@ -138,7 +138,6 @@ class LayerOrder:
         return LayerOrder(pairs=pairs.to(device=normal.device), normal=normal, gap=gap, stiffness=stiffness * full)
 
 
-
 def _faces_of_vertices(faces: Tensor, num_verts: int) -> Tensor:
     """Each vertex's faces (num_verts, D) int64, −1 where it has fewer than the most (D)."""
     vertex = faces.reshape(-1)
