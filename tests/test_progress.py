@@ -1,11 +1,12 @@
-"""Slow phases are announced on stderr; fast ones are silent."""
+"""Slow phases are announced on stderr; fast ones are silent; progress bars log sparingly into a
+file and redraw on a terminal."""
 
 from __future__ import annotations
 
 import io
 import time
 
-from physdrape.progress import directory_size, slow_phase
+from physdrape.progress import directory_size, progress_bar, slow_phase
 
 
 def test_a_slow_phase_says_what_it_does_and_when_it_ends():
@@ -45,3 +46,25 @@ def test_iteration_progress_reports_at_most_once_per_interval():
     lines = out.getvalue().splitlines()
     assert lines == ["[physdrape] oracle polish: iteration 2, residual 0.167, E 0.25 J, 5 s",
                      "[physdrape] oracle polish: iteration 4, residual 0.1, E 0.25 J, 10 s"]
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def _updates(stream, steps: int = 40) -> int:
+    """How many times a bar wrote its line while stepping `steps` times, 20 ms apart."""
+    bar = progress_bar(total=steps, desc="work", stream=stream)
+    for _ in range(steps):
+        time.sleep(0.02)
+        bar.update(1)
+    bar.close()
+    return stream.getvalue().count("work:")
+
+
+def test_a_bar_redraws_on_a_terminal_and_logs_sparingly_into_a_file():
+    """Stepping for about a second: on a terminal the line is redrawn several times, into a file
+    (not a terminal) it is written when the bar opens and closes, not in between."""
+    assert _updates(_Terminal()) >= 5
+    assert _updates(io.StringIO()) <= 3

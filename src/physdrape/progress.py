@@ -1,5 +1,6 @@
 """Telling the user about slow phases: a line on stderr when a phase has run for a few seconds,
-and one when it ends, so that no long operation is silent and no short one is noisy."""
+and one when it ends, so that no long operation is silent and no short one is noisy; progress
+bars that redraw on a terminal and log sparingly into a file."""
 
 from __future__ import annotations
 
@@ -12,6 +13,10 @@ from pathlib import Path
 
 #: A phase that runs longer than this [s] is announced.
 ANNOUNCE_AFTER_S = 5.0
+#: Seconds between a progress bar's updates where its stream is not a terminal (a log file, a
+#: cluster job's output, a pipe): there every update stays in the file, so a training run of
+#: hours logs a few hundred lines instead of tqdm's ten a second.
+LOG_UPDATE_EVERY_S = 30.0
 
 
 @contextlib.contextmanager
@@ -62,3 +67,15 @@ def directory_size(path) -> str:
     """The total size of the files under `path`, e.g. "790 MB" (for cache messages)."""
     total = sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
     return f"{total / 1e6:.0f} MB" if total < 1e9 else f"{total / 1e9:.1f} GB"
+
+
+def progress_bar(*, total: int, desc: str, unit: str = "it", initial: int = 0, disable: bool = False, stream=None):
+    """A tqdm progress bar on `stream` (default stderr): redrawn up to ten times a second on a
+    terminal, updated at most every `LOG_UPDATE_EVERY_S` seconds elsewhere."""
+    from tqdm import tqdm  # noqa: PLC0415  (only where a bar is shown)
+
+    out = sys.stderr if stream is None else stream
+    interactive = bool(getattr(out, "isatty", lambda: False)())
+    every = 0.1 if interactive else LOG_UPDATE_EVERY_S
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=out, disable=disable, dynamic_ncols=True,
+                mininterval=every, maxinterval=max(10.0, every))

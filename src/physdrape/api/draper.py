@@ -39,7 +39,7 @@ from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, relax
 from physdrape.physics.metrics import drape_metrics, faces_inside
 from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, PosedBodies, Template, select
-from physdrape.progress import iteration_progress
+from physdrape.progress import iteration_progress, progress_bar
 
 #: Posed body batches a `Draper` keeps, with their surfaces, for drapes on the same shape and poses.
 POSED_CACHE_SIZE = 8
@@ -330,9 +330,7 @@ class Draper:
         carried: dict[int, _Warm] = {}  # the last drape of each running sequence
         bar = None
         if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=n, unit="garment", desc="draping")
+            bar = progress_bar(total=n, unit="garment", desc="draping")
         try:
             cold = [i for i in range(n) if prev[i] is None]
             for c in range(0, len(cold), batch_size):

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 import time
 import warnings
 from collections.abc import Iterable, Iterator, Mapping
@@ -34,6 +33,7 @@ from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning
 from physdrape.atomic import atomic_directory
 from physdrape.export import save_result, write_json
 from physdrape.geometry.mesh import write_mesh
+from physdrape.progress import progress_bar
 
 #: The file every job folder holds; it records the job and the settings it was draped with.
 REPORT = "report.json"
@@ -303,7 +303,5 @@ def _remove_leftovers(out: Path, ids: set[str]) -> None:
 def _bar(progress: bool, total: int, initial: int, rank: int, world_size: int):
     if not progress:
         return None
-    from tqdm import tqdm
-
     desc = "draping" if world_size == 1 else f"rank {rank}/{world_size}"
-    return tqdm(total=total, initial=initial, unit="job", desc=desc, file=sys.stderr, dynamic_ncols=True)
+    return progress_bar(total=total, initial=initial, unit="job", desc=desc)

@@ -33,18 +33,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from physdrape.atomic import write_text
 from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
-    GarmentTemplate,
     GarmentCategory,
     GarmentParams,
+    GarmentTemplate,
     generate_valid_garment,
 )
 from physdrape.garments.io import read_ply, sha256_file, write_ply
+from physdrape.progress import progress_bar
 
 try:  # POSIX: processes generating into one directory take turns
     import fcntl
@@ -256,8 +256,7 @@ def make_split(
                   f"process{'es' if workers > 1 else ''}", file=sys.stderr, flush=True)
         jobs = [(e, str(out_dir), float(target_edge)) for e in missing]
         with _runner(workers) as run_all:
-            bar = tqdm(total=len(missing), unit="garment", desc="garment split", disable=not progress,
-                       file=sys.stderr)
+            bar = progress_bar(total=len(missing), unit="garment", desc="garment split", disable=not progress)
             written = time.monotonic()
             try:
                 for row in run_all(jobs):

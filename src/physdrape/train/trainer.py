@@ -30,6 +30,7 @@ from physdrape.devices import resolve_device
 from physdrape.model import ModelConfig, PhysDrape
 from physdrape.model.stretching_solver import SolverKind
 from physdrape.physics.metrics import b2g_percent
+from physdrape.progress import progress_bar
 from physdrape.train.data import DataConfig, TrainingBatch
 from physdrape.train.loss import LossConfig, drape_loss, lookahead_target
 
@@ -290,9 +291,7 @@ class Trainer:
             writer = SummaryWriter(str(self.run_dir / "tensorboard"))
         bar = None
         if self.rank == 0 and self.progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=self.config.optim.steps, initial=self.step, desc="train", dynamic_ncols=True)
+            bar = progress_bar(total=self.config.optim.steps, initial=self.step, desc="train")
         history = []
         metrics_path = self.run_dir / "metrics.jsonl"
         self.run_dir.mkdir(parents=True, exist_ok=True)
