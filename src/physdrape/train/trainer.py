@@ -320,8 +320,10 @@ class Trainer:
                                 if key != "step":
                                     writer.add_scalar(key, value, self.step)
                     if bar is not None:
+                        # shown at the bar's next redraw (a forced one per step would defeat its interval)
+                        bar.set_postfix(loss=f"{record['loss']:.4g}", b2g=f"{record['b2g_percent']:.2f}%",
+                                        refresh=False)
                         bar.update(1)
-                        bar.set_postfix(loss=f"{record['loss']:.4g}", b2g=f"{record['b2g_percent']:.2f}%")
                 if validator is not None and (self.step % every == 0 or self.step == stop):
                     self._validate(validator, writer, bar)
                 if self.step % self.config.optim.checkpoint_every == 0 or self.step == stop:
