@@ -1,6 +1,7 @@
 """The one place PhysDrape starts NVIDIA Warp (used by the body-surface queries, the solver's
 preconditioner blocks, the garment intersection tests, and Anny): initialised once, without its
-banner on stdout, where the CLI prints JSON; the stream Warp work on a torch device runs on; and
+banner on stdout, where the CLI prints JSON, nor its notice on stderr that a machine without an
+NVIDIA driver has no GPU (the CPU is what such a machine drapes on); the stream Warp work on a torch device runs on; and
 `defined_once`, the cache of the functions that define a module's kernels, with
 `load_all_kernels` for work about to run on several threads."""
 
@@ -8,6 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
+import sys
+import tempfile
 import threading
 from collections.abc import Callable
 from typing import TypeVar
@@ -70,8 +74,42 @@ def warp():
     import warp as wp  # noqa: PLC0415  (heavy import, only needed for queries)
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
-    wp.init()  # a no-op if something initialised it already
+    with _stderr_without(NO_DRIVER_NOTICE):
+        wp.init()  # a no-op if something initialised it already
     return wp
+
+
+#: What Warp's native start-up prints on a machine without an NVIDIA driver (every CPU-only
+#: laptop): not passed on.
+NO_DRIVER_NOTICE = "Could not find or load the NVIDIA CUDA driver"
+
+
+@contextlib.contextmanager
+def _stderr_without(notice: str):
+    """Run the block with the process's stderr (file descriptor 2, which native code writes to)
+    captured, then pass on every captured line but those containing `notice`. Where descriptor 2
+    cannot be duplicated (an embedded interpreter), the block runs with stderr as it is."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        saved = None
+    if saved is None:
+        yield
+        return
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield
+        finally:  # also when the block raises: what it printed is passed on
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            text = capture.read().decode("utf-8", errors="replace")
+            kept = "".join(line for line in text.splitlines(keepends=True) if notice not in line)
+            if kept:
+                sys.stderr.write(kept)
+                sys.stderr.flush()
 
 
 def launch_arg(tensor: torch.Tensor, dtype):
