@@ -1,9 +1,9 @@
 """The one place PhysDrape starts NVIDIA Warp (used by the body-surface queries, the solver's
 preconditioner blocks, the garment intersection tests, and Anny): initialised once, without its
 banner on stdout, where the CLI prints JSON, nor its notice on stderr that a machine without an
-NVIDIA driver has no GPU (the CPU is what such a machine drapes on); the stream Warp work on a torch device runs on; and
-`defined_once`, the cache of the functions that define a module's kernels, with
-`load_all_kernels` for work about to run on several threads."""
+NVIDIA driver has no GPU (the CPU is what such a machine drapes on); the stream Warp work on a
+torch device runs on; and `defined_once`, the cache of the functions that define a module's
+kernels, with `load_all_kernels` for work about to run on several threads."""
 
 from __future__ import annotations
 
@@ -90,7 +90,8 @@ def _stderr_without(notice: str):
     captured, then pass on every captured line but those containing `notice`. Where descriptor 2
     cannot be duplicated (an embedded interpreter), the block runs with stderr as it is."""
     try:
-        sys.stderr.flush()
+        if sys.stderr is not None:
+            sys.stderr.flush()
         saved = os.dup(2)
     except (OSError, ValueError):
         saved = None
@@ -107,7 +108,7 @@ def _stderr_without(notice: str):
             capture.seek(0)
             text = capture.read().decode("utf-8", errors="replace")
             kept = "".join(line for line in text.splitlines(keepends=True) if notice not in line)
-            if kept:
+            if kept and sys.stderr is not None:
                 sys.stderr.write(kept)
                 sys.stderr.flush()
 
