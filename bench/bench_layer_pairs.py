@@ -17,28 +17,19 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import torch
 from bench_drape import export_base
+from eval_record import suit_instances
 from report import page_head, write_report
+from timing import call_ms
 
-from physdrape.body.anny_body import get_anny_body
-from physdrape.eval.config import EvalConfig
-from physdrape.eval.instances import makehuman_instances
 from physdrape.model.config import ModelConfig
-
-
-def _timed(call) -> float:
-    start = time.perf_counter()
-    call()
-    return 1e3 * (time.perf_counter() - start)
 
 
 def main() -> None:
@@ -50,11 +41,8 @@ def main() -> None:
     parser.add_argument("--out", default="results/bench_layer_pairs")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    settings = json.loads(Path(args.eval).read_text())["config"]
-    config = EvalConfig(makehuman_dir=args.makehuman, seed=settings["seed"],
-                        makehuman_instances=settings["makehuman_instances"],
-                        makehuman_max_verts=settings["makehuman_max_verts"], dtype=settings["dtype"])
-    instances, _ = makehuman_instances(config, get_anny_body())
+    instances, _, record, _ = suit_instances(args.eval, args.makehuman)
+    settings = record["config"]
     model = ModelConfig()  # the contact penalty's k_c and ε, as the evaluation measures
     base_dir = Path(tempfile.mkdtemp(prefix="physdrape_base_"))
     export_base(args.base, base_dir)
@@ -84,7 +72,7 @@ def main() -> None:
             samples = {"this": [], "base": []}
             for r in range(args.repeats):
                 for k in (("this", "base") if r % 2 == 0 else ("base", "this")):
-                    samples[k].append(_timed(pair[k]))
+                    samples[k].append(call_ms(pair[k]))
             row["ms"][name] = {k: statistics.median(v) for k, v in samples.items()}
             row["ms"][name]["ratio"] = statistics.median(b / a for a, b in zip(samples["this"], samples["base"]))
         rows.append(row)

@@ -1,4 +1,5 @@
-"""The test instances of an evaluation record and their references, drawn again in this checkout."""
+"""The test instances and the MakeHuman suits of an evaluation record, with their references,
+drawn again in this checkout."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import json
 from pathlib import Path
 
 from physdrape.eval.config import EvalConfig
-from physdrape.eval.instances import split_instances
+from physdrape.eval.instances import makehuman_instances, split_instances
 
 
 def test_instances(path: str, count: int | None = None) -> tuple[list, list[dict], dict]:
@@ -31,3 +32,27 @@ def test_instances(path: str, count: int | None = None) -> tuple[list, list[dict
     if [inst.garment for inst in instances] != [d["garment"] for d in described[:count]]:
         raise SystemExit(f"the test instances of this checkout are not those of {path}")
     return instances, references[:count], record
+
+
+def suit_instances(path: str, makehuman_dir: str) -> tuple[list, list[dict], dict, EvalConfig]:
+    """(instances, reference records, the record, its EvalConfig) of the MakeHuman set of the
+    evaluation record at `path`, the garments read from `makehuman_dir` (`physdrape eval
+    --makehuman`'s layout, bodies and wear; the config carries the record's oracle settings).
+    Exits with a message when the record has no such set with references or the folder holds
+    other garments."""
+    record = json.loads(Path(path).read_text())
+    if "makehuman" not in record["sets"] or not record["sets"]["makehuman"].get("reference"):
+        raise SystemExit(f"{path} has no MakeHuman set with references: run `physdrape eval --makehuman DIR`")
+    settings = record["config"]
+    config = EvalConfig(makehuman_dir=makehuman_dir, seed=settings["seed"],
+                        makehuman_instances=settings["makehuman_instances"],
+                        makehuman_max_verts=settings["makehuman_max_verts"],
+                        oracle_budget_s=settings["oracle_budget_s"], oracle_tol=settings["oracle_tol"],
+                        oracle_max_iters=settings["oracle_max_iters"], dtype=settings["dtype"])
+    from physdrape.body.anny_body import get_anny_body
+
+    instances, _ = makehuman_instances(config, get_anny_body())
+    suits = record["sets"]["makehuman"]
+    if [inst.garment for inst in instances] != [d["garment"] for d in suits["instances"]]:
+        raise SystemExit(f"the suits under {makehuman_dir} are not those of {path}")
+    return instances, suits["reference"]["per_instance"], record, config

@@ -26,21 +26,18 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
+from eval_record import suit_instances
 from report import page_head, write_report
 
 from physdrape.api.specs import garment_template
 from physdrape.checkpoint import load_model
 from physdrape.eval import evaluate as ev
-from physdrape.eval.config import EvalConfig
-from physdrape.eval.instances import makehuman_instances
 from physdrape.garments.pieces import garment_parts
 from physdrape.geometry.intersections import piece_crossings
 from physdrape.model import Variant
@@ -70,25 +67,10 @@ def main() -> None:
     parser.add_argument("--out", default="results/suits_convergence")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    record = json.loads(Path(args.eval).read_text())
-    if "makehuman" not in record["sets"] or not record["sets"]["makehuman"].get("reference"):
-        raise SystemExit(f"{args.eval} has no MakeHuman set with references: run `physdrape eval --makehuman DIR`")
-    settings = record["config"]
-    config = EvalConfig(makehuman_dir=args.makehuman, seed=settings["seed"],
-                        makehuman_instances=settings["makehuman_instances"],
-                        makehuman_max_verts=settings["makehuman_max_verts"],
-                        oracle_budget_s=settings["oracle_budget_s"], oracle_tol=settings["oracle_tol"],
-                        oracle_max_iters=settings["oracle_max_iters"], dtype=settings["dtype"])
+    instances, references, record, config = suit_instances(args.eval, args.makehuman)
     model, _ = load_model(args.checkpoint, variant=Variant.FULL)
     gnn_only, _ = load_model(args.checkpoint, variant=Variant.GNN_ONLY)
     contact = ev.Contact.of(model)
-    from physdrape.body.anny_body import get_anny_body
-
-    instances, _ = makehuman_instances(config, get_anny_body())
-    references = record["sets"]["makehuman"]["reference"]["per_instance"]
-    described = record["sets"]["makehuman"]["instances"]
-    if [inst.garment for inst in instances] != [d["garment"] for d in described]:
-        raise SystemExit(f"the suits under {args.makehuman} are not those of {args.eval}")
     rows = []
     for inst, ref in zip(instances, references):
         batch, _, _ = inst.batch()

@@ -7,16 +7,18 @@ import statistics
 import time
 
 
+def call_ms(fn) -> float:
+    """Wall time of one call fn() in milliseconds."""
+    start = time.perf_counter()
+    fn()
+    return 1e3 * (time.perf_counter() - start)
+
+
 def median_ms(fn, repeats: int, *, warmup: int = 1) -> float:
     """Median wall time of fn() in milliseconds over `repeats` calls after `warmup` untimed calls."""
     for _ in range(warmup):
         fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
+    return statistics.median(call_ms(fn) for _ in range(repeats))
 
 
 def median_bound(values: list[float], bounds: list[bool]) -> tuple[float, bool]:
