@@ -1,12 +1,15 @@
 """`TensorMemo`: values derived from a tensor, by identity, remade after an in-place change, let go
 when the tensor dies, the most recently used kept; `IdentityMemo`: values derived from a few
-objects, by identity and a key, and what uses it (a batch packed again, its cloth built again)."""
+objects, by identity and a key, and what uses it (a batch packed again, its cloth built again);
+`KeyedMemo`: values made per key, the most recently used kept."""
 
 import gc
 
 import torch
 
-from physdrape.tensor_memo import IdentityMemo, TensorMemo
+import pytest
+
+from physdrape.tensor_memo import IdentityMemo, KeyedMemo, TensorMemo
 
 
 def test_a_value_is_made_once_per_tensor_and_again_after_an_in_place_change():
@@ -77,3 +80,23 @@ def test_the_same_garments_pack_into_the_same_batch_and_cloth():
     cloth = Cloth.build(batch)
     assert Cloth.build(batch) is cloth and Cloth.build(batch, Material(density=0.3)) is not cloth
     assert Cloth.build(batch, [Material(), Material()]) is cloth  # the default material for each
+
+
+def test_a_keyed_value_is_made_once_and_the_most_recently_used_are_kept():
+    memo, made = KeyedMemo(2), []
+
+    def make(key):
+        def value():
+            made.append(key)
+            return [key]
+        return value
+
+    first = memo.get("a", make("a"))
+    assert memo.get("a", make("a")) is first and made == ["a"]
+    memo.get("b", make("b"))
+    memo.get("a", make("a"))  # "a" used last: "b" is the least recently used
+    memo.get("c", make("c"))
+    assert len(memo) == 2 and "a" in memo and "c" in memo and "b" not in memo
+    assert memo.get("b", make("b")) == ["b"] and made == ["a", "b", "c", "b"]  # made again once let go
+    with pytest.raises(ValueError, match="at least one"):
+        KeyedMemo(0)

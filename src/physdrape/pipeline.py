@@ -42,6 +42,7 @@ from physdrape.physics import Cloth, Material
 from physdrape.physics.grip import Grip
 from physdrape.physics.layers import LayerOrder, push_outer_out
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
+from physdrape.tensor_memo import KeyedMemo
 from physdrape.threads import parallel_map
 
 #: The dtype of the garments, bodies and X_init handed to the model unless a caller asks otherwise
@@ -54,6 +55,11 @@ POSE_DTYPE = torch.float64
 #: (V + F ≈ 3 V), the collision handler's and the metrics' (V + F each). Told to the surfaces
 #: (`BodySurface.expect`), so that a new body finds its doubtful faces before the first query.
 QUERIES_PER_VERTEX = 11
+#: Garment templates whose derived data (skinning transfer, rest-state quantities, pieces, layer
+#: pairs, closures) a pipeline keeps, the most recently used: a batch draping more at once derives
+#: some again; a dataset of thousands of garments draped in one process holds this many (about
+#: 1.5 MB each for a 3k-vertex garment), not every one.
+TEMPLATES_KEPT = 64
 
 
 def _digest(*arrays: np.ndarray) -> str:
@@ -190,44 +196,37 @@ class DrapePipeline:
         self.dtype = dtype
         self.device = torch.device(device)
         self.x_init_limits = dict(x_init_limits or {})
-        self._transfers: dict[str, SkinningTransfer] = {}
         self._body_search: BodySearch | None = None  # what every template's fit searches on the body
-        self._device_transfers: dict[str, SkinningTransfer] = {}
-        self._garments: dict[str, Garment] = {}
-        self._bands: dict[str, np.ndarray] = {}
-        self._closures: dict[str, np.ndarray] = {}
-        self._pieces: dict[str, GarmentParts] = {}
-        self._layer_pairs: dict[str, layering.LayerPairs] = {}
+        # what is derived from each template, by its key, for the TEMPLATES_KEPT most recently used
+        (self._transfers, self._device_transfers, self._garments, self._bands, self._closures, self._pieces,
+         self._layer_pairs) = (KeyedMemo(TEMPLATES_KEPT) for _ in range(7))
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""
-        if template.key not in self._transfers:
+        def fit() -> SkinningTransfer:
             if self._body_search is None:  # the canonical body, formed and searched once
                 self._body_search = BodySearch.of(self.body.canonical_verts(dtype=torch.float64), self.body.faces)
             search = self._body_search
             transfer = SkinningTransfer.fit(torch.from_numpy(search.verts), search.faces,
                                             torch.from_numpy(template.verts), torch.from_numpy(template.faces),
                                             search=search)
-            self._transfers[template.key] = replace(transfer, **self.x_init_limits)
-        return self._transfers[template.key]
+            return replace(transfer, **self.x_init_limits)
+
+        return self._transfers.get(template.key, fit)
 
     def _transfer_here(self, template: Template) -> SkinningTransfer:
         """The template's transfer on the pipeline's device (moved once)."""
         if self.device.type == "cpu":
             return self.transfer(template)
-        if template.key not in self._device_transfers:
-            self._device_transfers[template.key] = self.transfer(template).to(self.device)
-        return self._device_transfers[template.key]
+        return self._device_transfers.get(template.key, lambda: self.transfer(template).to(self.device))
 
     def garment(self, template: Template, rest: np.ndarray | None = None) -> Garment:
         """The template's rest-state quantities in the pipeline's dtype, on its device (computed
         once); with `rest` [m] (V, 3), those of that rest shape (computed each time)."""
         if rest is not None:
             return Garment.from_mesh(rest, template.faces, name=template.name, dtype=self.dtype).to(device=self.device)
-        if template.key not in self._garments:
-            self._garments[template.key] = Garment.from_mesh(template.verts, template.faces, name=template.name,
-                                                             dtype=self.dtype).to(device=self.device)
-        return self._garments[template.key]
+        return self._garments.get(template.key, lambda: Garment.from_mesh(
+            template.verts, template.faces, name=template.name, dtype=self.dtype).to(device=self.device))
 
     def x_init(self, template: Template, state: BodyState | PosedBodies, index: int = 0,
                rest: np.ndarray | None = None) -> Tensor:
@@ -340,20 +339,18 @@ class DrapePipeline:
     def grip_band(self, template: Template) -> np.ndarray:
         """The template's gripping vertices, its waistband's strip (`garments.pieces.waistband_band`),
         (K,) int64 (computed once)."""
-        if template.key not in self._bands:
-            parts = self._parts(template)
-            self._bands[template.key] = waistband_band(template.verts, parts)
-        return self._bands[template.key]
+        return self._bands.get(template.key, lambda: waistband_band(template.verts, self._parts(template)))
 
     def closure_pairs(self, template: Template) -> np.ndarray:
         """Where the template's panels overlap on the canonical body, the trousers' overlap with a
         top left out (`garments.closures.panel_overlaps`): the pairs closures tie, (K, 2) int64
         (computed once)."""
-        if template.key not in self._closures:
+        def find() -> np.ndarray:
             parts = self._parts(template)
             exclude = None if parts.lower is None else parts.piece == parts.lower
-            self._closures[template.key] = panel_overlaps(template.verts, template.faces, parts.piece, exclude=exclude)
-        return self._closures[template.key]
+            return panel_overlaps(template.verts, template.faces, parts.piece, exclude=exclude)
+
+        return self._closures.get(template.key, find)
 
     def _stitches(self, jobs: Sequence[Job], batch: GarmentBatch) -> Stitches | None:
         """The batch's stitches: each job's pairs, rest distance on its rest shape, stiffness
@@ -371,9 +368,7 @@ class DrapePipeline:
 
     def _parts(self, template: Template) -> GarmentParts:
         """The template's pieces (`garments.pieces.garment_parts`; found once)."""
-        if template.key not in self._pieces:
-            self._pieces[template.key] = garment_parts(template.verts, template.faces)
-        return self._pieces[template.key]
+        return self._pieces.get(template.key, lambda: garment_parts(template.verts, template.faces))
 
     def layer_pairs(self, template: Template) -> np.ndarray:
         """[outer, inner] vertex pairs where the template's pieces overlap on the canonical body
@@ -382,12 +377,12 @@ class DrapePipeline:
 
     def _layering(self, template: Template) -> layering.LayerPairs:
         """The template's layer pairs and their separation on it [m] (`layering.layer_pairs`)."""
-        if template.key not in self._layer_pairs:
-            piece = self._parts(template).piece
+        def find() -> layering.LayerPairs:
             body_verts = self.body.canonical_verts(dtype=torch.float64).numpy()
-            self._layer_pairs[template.key] = layering.layer_pairs(template.verts, piece, body_verts,
-                                                                   np.asarray(self.body.faces, np.int64))
-        return self._layer_pairs[template.key]
+            return layering.layer_pairs(template.verts, self._parts(template).piece, body_verts,
+                                        np.asarray(self.body.faces, np.int64))
+
+        return self._layer_pairs.get(template.key, find)
 
     def _layers(self, jobs: Sequence[Job], batch: GarmentBatch, x_init: Tensor, bodies: BodySurface) -> LayerOrder | None:
         """The batch's layer order: each layered job's pairs, the body normal at the inner vertex

@@ -1,7 +1,9 @@
 """Values derived from a tensor, kept while that tensor lives unmodified: for what a solver derives
-from the same cloth tensors dozens of times per drape (kernel-typed copies, split points); and
+from the same cloth tensors dozens of times per drape (kernel-typed copies, split points);
 values derived from a few objects, kept while those objects live (`IdentityMemo`: a batch packed
-from the same garments, its cloth in the same materials)."""
+from the same garments, its cloth in the same materials); and values made per key, the most
+recently used kept (`KeyedMemo`: what a pipeline derives from each garment template, bounded so
+that draping thousands of garments in one process does not hold every garment's)."""
 
 from __future__ import annotations
 
@@ -83,3 +85,37 @@ class IdentityMemo:
         """Forget every value."""
         with self._lock:
             self._values.clear()
+
+
+class KeyedMemo:
+    """make() per hashable key, the `size` most recently used kept (the least recently used is
+    let go when a new key would make more). Safe to share between threads (a value may then be
+    made twice, once per thread, and either kept)."""
+
+    def __init__(self, size: int) -> None:
+        if size < 1:
+            raise ValueError(f"a KeyedMemo keeps at least one value, got size {size}")
+        self.size = size
+        self._values: collections.OrderedDict[Hashable, object] = collections.OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: Hashable, make: Callable[[], V]) -> V:
+        with self._lock:
+            if key in self._values:
+                self._values.move_to_end(key)
+                return self._values[key]
+        value = make()
+        with self._lock:
+            self._values[key] = value
+            self._values.move_to_end(key)
+            while len(self._values) > self.size:
+                self._values.popitem(last=False)
+        return value
+
+    def __contains__(self, key: Hashable) -> bool:
+        with self._lock:
+            return key in self._values
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._values)

@@ -38,8 +38,9 @@ from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, relax
 from physdrape.physics.metrics import drape_metrics, faces_inside
-from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, DrapePipeline, PosedBodies, Template, select
+from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, TEMPLATES_KEPT, DrapePipeline, PosedBodies, Template, select
 from physdrape.progress import iteration_progress, progress_bar
+from physdrape.tensor_memo import KeyedMemo
 
 #: Posed body batches a `Draper` keeps, with their surfaces, for drapes on the same shape and poses.
 POSED_CACHE_SIZE = 8
@@ -147,9 +148,10 @@ class Draper:
         self.smpl = self._bodies.get("smpl")
         self._wearing = Wearing(by_binding=self.smpl is None)
         self._pipelines: dict[str, DrapePipeline] = {}
-        self._templates: dict[tuple[str, str], Template] = {}
+        # the garments named by text specs, and whether each hangs on the canonical body: the
+        # pipelines' TEMPLATES_KEPT most recently used (a manifest of thousands holds that many)
+        self._templates, self._detached = KeyedMemo(TEMPLATES_KEPT), KeyedMemo(TEMPLATES_KEPT)
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
-        self._detached: dict[tuple[str, str], str | None] = {}
         self._named_poses: dict[str, list[BodyPose]] = {}
         #: the last few posed body batches (their surfaces built on first use), by rig, shapes and poses
         self._posed: OrderedDict[tuple, PosedBodies] = OrderedDict()
@@ -178,27 +180,24 @@ class Draper:
     def garment(self, spec, *, units: str = "m") -> Template:
         """Resolve a garment spec (see `physdrape.api.specs.garment_template`) whose files and
         meshes are in `units`; text specs are cached."""
-        key = (str(spec), units)
-        if isinstance(spec, (str, Path)) and key in self._templates:
-            return self._templates[key]
-        template = specs.garment_template(spec, smpl=self.smpl is not None, units=units)
-        if isinstance(spec, (str, Path)):
-            self._templates[key] = template
-        return template
+        def resolve() -> Template:
+            return specs.garment_template(spec, smpl=self.smpl is not None, units=units)
+
+        return self._templates.get((str(spec), units), resolve) if isinstance(spec, (str, Path)) else resolve()
 
     def detached(self, template: Template, rig: str = "anny") -> str | None:
         """Why `template` cannot hang on the canonical body of `rig` (it neither touches nor
         surrounds it, see `physdrape.api.placement`), or None; computed once per template."""
-        key = (template.key, rig)
-        if key not in self._detached:
+        def reason() -> str | None:
             if rig not in self._canonical:
                 body = self.body(rig)
                 verts = body.canonical_verts(dtype=torch.float64)
                 self._canonical[rig] = (verts.numpy(), BodySurface(verts, body.faces))
             body_verts, surface = self._canonical[rig]
             nearest, gap = placement.attachment(template.verts, body_verts, surface)
-            self._detached[key] = placement.detached_reason(template.name, nearest, gap)
-        return self._detached[key]
+            return placement.detached_reason(template.name, nearest, gap)
+
+        return self._detached.get((template.key, rig), reason)
 
     def _check_attached(self, jobs: list[_Job], allow_detached: bool) -> None:
         """Refuse (or, allow_detached, warn about) templates that hang on nothing."""
