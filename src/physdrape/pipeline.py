@@ -185,10 +185,12 @@ class DrapePipeline:
         x_init_limits: X_init's strain limiting other than the transfer's defaults: fields of
             `SkinningTransfer` named in `LIMIT_FIELDS` (e.g. ``{"min_stretch": None}``: compressed
             edges left as skinned); None keeps the defaults.
+        templates_kept: how many templates' derived data are kept, the most recently used
+            (default `TEMPLATES_KEPT`; a training set's source keeps all of its garments').
     """
 
     def __init__(self, body, *, dtype: torch.dtype = DEFAULT_DTYPE, device: torch.device | str = "cpu",
-                 x_init_limits: dict | None = None) -> None:
+                 x_init_limits: dict | None = None, templates_kept: int | None = None) -> None:
         unknown = sorted(set(x_init_limits or ()) - set(LIMIT_FIELDS))
         if unknown:
             raise ValueError(f"x_init_limits: unknown field(s) {unknown}; choose among {list(LIMIT_FIELDS)}")
@@ -197,9 +199,10 @@ class DrapePipeline:
         self.device = torch.device(device)
         self.x_init_limits = dict(x_init_limits or {})
         self._body_search: BodySearch | None = None  # what every template's fit searches on the body
-        # what is derived from each template, by its key, for the TEMPLATES_KEPT most recently used
+        # what is derived from each template, by its key, for the most recently used
+        kept = TEMPLATES_KEPT if templates_kept is None else templates_kept
         (self._transfers, self._device_transfers, self._garments, self._bands, self._closures, self._pieces,
-         self._layer_pairs) = (KeyedMemo(TEMPLATES_KEPT) for _ in range(7))
+         self._layer_pairs) = (KeyedMemo(kept) for _ in range(7))
 
     def transfer(self, template: Template) -> SkinningTransfer:
         """The template's skinning transfer onto the body model (fitted on first use, then cached)."""

@@ -31,7 +31,10 @@ class DrapeInput:
     Attributes:
         garments: packed garment templates; cloth: their physics coefficients (materials);
         x_init: kinematic initialisation X_init [m], (ΣV, 3);
-        bodies: the posed bodies; body_index: body of each garment vertex, (ΣV,) int64.
+        bodies: the posed bodies; body_index: body of each garment vertex, (ΣV,) int64;
+        step_parts: the two-level solver's first-step parts at X_init (`PhysDrape.step_parts_at`),
+            where the caller holds them (a training instance's are the same at every step), or
+            None: the model computes them.
     All on one device, the model's (`to` moves them).
     """
 
@@ -40,6 +43,7 @@ class DrapeInput:
     x_init: Tensor
     bodies: BodySurface
     body_index: Tensor
+    step_parts: tuple[Tensor, ...] | None = None
 
     @property
     def device(self) -> torch.device:
@@ -48,7 +52,8 @@ class DrapeInput:
     def to(self, device: torch.device | str) -> DrapeInput:
         """The same batch on `device` (the body surface rebuilds its BVHs there)."""
         return DrapeInput(self.garments.to(device=device), self.cloth.to(device=device), self.x_init.to(device),
-                          self.bodies.to(device), self.body_index.to(device))
+                          self.bodies.to(device), self.body_index.to(device),
+                          None if self.step_parts is None else tuple(p.to(device) for p in self.step_parts))
 
 
 @dataclass(frozen=True)
@@ -137,12 +142,10 @@ class PhysDrape(nn.Module):
         x = batch.x_init if x is None else x
         net_dtype = self.gnn.decoder[0].weight.dtype
         if self.config.step_inputs:  # one body query serves the vertices' distances and the step's contact
-            # the face centroids only within the contact's reach, the others no contact term or block sees
-            reach = max(self.solver.contact_band, self.solver.margin)
-            query = query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
+            query = self._step_query(batch, x)
             nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
-            parts = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
-                                           query=query, newton_iterations=self.config.step_newton_iterations)
+            held = x is batch.x_init and batch.step_parts is not None
+            parts = batch.step_parts if held else self._step_parts(batch, x, query)
             nodes = torch.cat([nodes, *(part.to(nodes.dtype) for part in parts)], dim=-1)
         else:
             query = batch.bodies.query(x, body_index=batch.body_index)
@@ -153,6 +156,26 @@ class PhysDrape(nn.Module):
         graph = batch.garments.graph_levels(levels)
         edges = edge_features(x, batch.garments, graph.edge_index, graph.level, levels)
         return nodes, edges.to(net_dtype), graph, query
+
+    @torch.no_grad()
+    def step_parts_at(self, batch: DrapeInput, x: Tensor | None = None) -> tuple[Tensor, ...]:
+        """The two-level solver's first-step parts at x (default X_init) that the network reads
+        with `config.step_inputs` (`StretchingSolver.step_parts`: the block-Jacobi and coarse
+        moves, and the truncated Newton move with `config.step_newton_iterations`), each
+        (ΣV, 3) [m] in x's dtype, on the body planes its inputs query."""
+        x = batch.x_init if x is None else x
+        return self._step_parts(batch, x, self._step_query(batch, x))
+
+    def _step_query(self, batch: DrapeInput, x: Tensor) -> SurfaceQuery:
+        """The body query of x's contact samples that the step parts and the vertices' distances are
+        read from: the face centroids only within the contact's reach (no contact term or block
+        sees the others)."""
+        reach = max(self.solver.contact_band, self.solver.margin)
+        return query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
+
+    def _step_parts(self, batch: DrapeInput, x: Tensor, query: SurfaceQuery) -> tuple[Tensor, ...]:
+        return self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
+                                      query=query, newton_iterations=self.config.step_newton_iterations)
 
     def _look_back(self, batch: DrapeInput, at: Tensor, query: SurfaceQuery) -> Callable[[Tensor], Tensor]:
         """The look-back stage's reader (`EncodeProcessDecode.forward_looking_back`): the network's

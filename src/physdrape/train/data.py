@@ -121,7 +121,8 @@ class DrapeSource:
         if not self.templates:
             raise ValueError("no garment templates to train on: check DataConfig.split_dir / subset / max_garments")
         self.pool = part_pool(self.body, config, "train")
-        self.pipeline = DrapePipeline(self.body, dtype=self.dtype)
+        # every garment's rest state kept: each step draws instances of any of them
+        self.pipeline = DrapePipeline(self.body, dtype=self.dtype, templates_kept=len(self.templates))
         self._posed: PosedBodies | None = None
         self.cache = self.validation_pool = None
         if config.instances:
