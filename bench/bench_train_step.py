@@ -9,7 +9,9 @@ as `bench/bench_drape.py` does), one torch thread, eager network; each warms up 
 normalisers, then the two take turns step by step (the same seeds, so both draw the same instances
 at each step) for `--steps` steps each. This commit's trainer first meets every training instance
 once (`Trainer.step_parts` then holds each instance's solver step at X_init, as a run does after
-its first few hundred steps): the rows are the steady state of a long run. Prints and writes
+its first few hundred steps): the rows are the steady state of a long run. Each step is made as
+the package's own `Trainer.run` makes it (where `train_step` takes `measure`, the batch's B2G is
+measured at the steps the run logs, every `optim.log_every`, only). Prints and writes
 <out>.md and <out>.json: the median step per package, the median of the paired ratios, the load
 average.
 """
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import json
 import os
 import statistics
@@ -72,8 +75,12 @@ def worker(packages: list[str], config_path: str, steps: int) -> dict[str, list[
         times = {package: [] for package in packages}
         for k in range(steps):
             for package in packages if k % 2 == 0 else packages[::-1]:
+                trainer = trainers[package]
+                options = {}
+                if "measure" in inspect.signature(trainer.train_step).parameters:  # as its `run` asks
+                    options["measure"] = (trainer.step + 1) % trainer.config.optim.log_every == 0
                 start = time.perf_counter()
-                trainers[package].train_step()
+                trainer.train_step(**options)
                 times[package].append(1e3 * (time.perf_counter() - start))
     return times
 

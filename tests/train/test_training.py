@@ -33,7 +33,10 @@ def test_short_training_run_lowers_the_loss(tmp_path, solver):
     history = t.run()
     first, last = history[0]["loss"], history[-1]["loss"]
     assert last < first - 0.05 * abs(first), f"loss did not fall: {first:.5g} → {last:.5g}"
-    assert (tmp_path / "metrics.jsonl").is_file()
+    # the batch's B2G is measured at the steps the run logs (every 5th), and only there
+    logged = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in logged] == list(range(5, 41, 5)) and all(r["b2g_percent"] >= 0 for r in logged)
+    assert [r["step"] for r in history if "b2g_percent" in r] == list(range(5, 41, 5))
 
 
 @needs_compiler

@@ -228,7 +228,10 @@ class Trainer:
                 for name in ("count", "sum", "sum_squares"):
                     dist.all_reduce(getattr(norm, name))
 
-    def train_step(self) -> dict[str, float]:
+    def train_step(self, *, measure: bool = True) -> dict[str, float]:
+        """One optimiser step; returns the loss, its terms and the optimiser's state. measure: also
+        the batch's B2G % (a body query of every face's centroid: `run` asks for it at the steps it
+        logs)."""
         model = self.ddp or self.model
         model.train()
         sample = self._local_batch()
@@ -249,11 +252,18 @@ class Trainer:
         self.optimizer.step()
         self.scheduler.step()
         self.step += 1
-        with torch.no_grad():
-            b2g = b2g_percent(out.x.detach(), batch.garments, batch.bodies, batch.body_index).mean()
-        return {"loss": float(loss.detach()), **{k: float(v) for k, v in terms.items()}, "b2g_percent": float(b2g),
+        measured = {}
+        if measure:
+            with torch.no_grad():
+                b2g = b2g_percent(out.x.detach(), batch.garments, batch.bodies, batch.body_index).mean()
+            measured["b2g_percent"] = float(b2g)
+        return {"loss": float(loss.detach()), **{k: float(v) for k, v in terms.items()}, **measured,
                 "grad_norm": float(grad_norm), "lr": self.scheduler.get_last_lr()[0], "eta": float(self.model.solver.eta.detach()),
                 "gamma": float(self.model.solver.gamma.detach()), "delta": float(self.model.handler.delta.detach())}
+
+    def _logs(self, step: int) -> bool:
+        """Whether `run` writes the record of `step` to metrics.jsonl and TensorBoard."""
+        return step % self.config.optim.log_every == 0 or step == self.config.optim.steps
 
     def _validate(self, validator, writer, bar=None) -> None:
         """One held-out validation (`physdrape.train.validation`), appended to validation.jsonl
@@ -308,13 +318,15 @@ class Trainer:
                 self._validate(validator, writer, bar)
         try:
             stop = self.config.optim.steps if until is None else min(until, self.config.optim.steps)
+            logged = None  # the last logged step's record: its B2G stays on the bar until the next
             while self.step < stop:
-                record = self.train_step()
+                record = self.train_step(measure=self._logs(self.step + 1))
                 record["step"] = self.step
                 record["wall_s"] = time.perf_counter() - start
                 history.append(record)
                 if self.rank == 0:
-                    if self.step % self.config.optim.log_every == 0 or self.step == self.config.optim.steps:
+                    if self._logs(self.step):
+                        logged = record
                         with open(metrics_path, "a") as handle:
                             handle.write(json.dumps(record) + "\n")
                         if writer is not None:
@@ -323,8 +335,8 @@ class Trainer:
                                     writer.add_scalar(key, value, self.step)
                     if bar is not None:
                         # shown at the bar's next redraw (a forced one per step would defeat its interval)
-                        bar.set_postfix(loss=f"{record['loss']:.4g}", b2g=f"{record['b2g_percent']:.2f}%",
-                                        refresh=False)
+                        shown = {} if logged is None else {"b2g": f"{logged['b2g_percent']:.2f}%"}
+                        bar.set_postfix(loss=f"{record['loss']:.4g}", **shown, refresh=False)
                         bar.update(1)
                 if validator is not None and (self.step % every == 0 or self.step == stop):
                     self._validate(validator, writer, bar)
