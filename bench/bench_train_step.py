@@ -8,8 +8,8 @@ if missing) for this commit's package and, with `--base`, for that commit's (exp
 as `bench/bench_drape.py` does), one torch thread, eager network; each warms up its input
 normalisers, then the two take turns step by step (the same seeds, so both draw the same instances
 at each step) for `--steps` steps each. This commit's trainer first meets every training instance
-once (`Trainer.step_parts` then holds each instance's solver step at X_init, as a run does after
-its first few hundred steps): the rows are the steady state of a long run. Each step is made as
+once (`Trainer.node_inputs` then holds the network's inputs at each instance's X_init, as a run
+does after its first few hundred steps): the rows are the steady state of a long run. Each step is made as
 the package's own `Trainer.run` makes it (where `train_step` takes `measure`, the batch's B2G is
 measured at the steps the run logs, every `optim.log_every`, only). Prints and writes
 <out>.md and <out>.json: the median step per package, the median of the paired ratios, the load
@@ -48,7 +48,7 @@ def _trainer(package: str, config_path: str, run_dir: str):
 
 
 def _meet_every_instance(package: str, trainer, source) -> None:
-    """Hand each training instance to the trainer's step-parts memo once (4 per batch)."""
+    """Hand each training instance to the trainer's memo of the network's inputs once (4 per batch)."""
     pipeline = importlib.import_module(f"{package}.pipeline")
     physics = importlib.import_module(f"{package}.physics")
     data = importlib.import_module(f"{package}.train.data")
@@ -57,7 +57,7 @@ def _meet_every_instance(package: str, trainer, source) -> None:
         picks = list(range(start, min(count, start + 4)))
         jobs = [pipeline.Job(source.templates[source._train[i].garment], source._train[i].body,
                              physics.Material(**source._train[i].material), source._tensors[i][0]) for i in picks]
-        trainer.step_parts.attach(data.TrainingBatch(source.pipeline.build(jobs, source.posed_pool()), None,
+        trainer.node_inputs.attach(data.TrainingBatch(source.pipeline.build(jobs, source.posed_pool()), None,
                                                      tuple(picks)))
 
 
@@ -69,7 +69,7 @@ def worker(packages: list[str], config_path: str, steps: int) -> dict[str, list[
     with tempfile.TemporaryDirectory() as tmp:
         for package in packages:
             trainer, source = _trainer(package, config_path, f"{tmp}/{package}")
-            if hasattr(trainer, "step_parts"):
+            if hasattr(trainer, "node_inputs"):
                 _meet_every_instance(package, trainer, source)
             trainers[package] = trainer
         times = {package: [] for package in packages}

@@ -32,9 +32,9 @@ class DrapeInput:
         garments: packed garment templates; cloth: their physics coefficients (materials);
         x_init: kinematic initialisation X_init [m], (ΣV, 3);
         bodies: the posed bodies; body_index: body of each garment vertex, (ΣV,) int64;
-        step_parts: the two-level solver's first-step parts at X_init (`PhysDrape.step_parts_at`),
-            where the caller holds them (a training instance's are the same at every step), or
-            None: the model computes them.
+        x_init_nodes: the network's raw node inputs at X_init (`PhysDrape.node_inputs`), where the
+            caller holds them (a training instance's are the same at every step), or None: the
+            model computes them.
     All on one device, the model's (`to` moves them).
     """
 
@@ -43,7 +43,7 @@ class DrapeInput:
     x_init: Tensor
     bodies: BodySurface
     body_index: Tensor
-    step_parts: tuple[Tensor, ...] | None = None
+    x_init_nodes: Tensor | None = None
 
     @property
     def device(self) -> torch.device:
@@ -53,7 +53,7 @@ class DrapeInput:
         """The same batch on `device` (the body surface rebuilds its BVHs there)."""
         return DrapeInput(self.garments.to(device=device), self.cloth.to(device=device), self.x_init.to(device),
                           self.bodies.to(device), self.body_index.to(device),
-                          None if self.step_parts is None else tuple(p.to(device) for p in self.step_parts))
+                          None if self.x_init_nodes is None else self.x_init_nodes.to(device))
 
 
 @dataclass(frozen=True)
@@ -138,19 +138,14 @@ class PhysDrape(nn.Module):
     def _graph_inputs(self, batch: DrapeInput,
                       x: Tensor | None = None) -> tuple[Tensor, Tensor, GraphLevels, SurfaceQuery | None]:
         """`graph_inputs` and, with `config.step_inputs`, the body query of x's contact samples
-        that its step parts were found on (else None)."""
+        that its step parts were found on (else None; also where the batch holds the node inputs
+        at X_init and no look-back stage reads the query)."""
         x = batch.x_init if x is None else x
         net_dtype = self.gnn.decoder[0].weight.dtype
-        if self.config.step_inputs:  # one body query serves the vertices' distances and the step's contact
-            query = self._step_query(batch, x)
-            nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
-            held = x is batch.x_init and batch.step_parts is not None
-            parts = batch.step_parts if held else self._step_parts(batch, x, query)
-            nodes = torch.cat([nodes, *(part.to(nodes.dtype) for part in parts)], dim=-1)
+        if x is batch.x_init and batch.x_init_nodes is not None and not self.config.look_back_blocks:
+            nodes, query = batch.x_init_nodes, None
         else:
-            query = batch.bodies.query(x, body_index=batch.body_index)
-            nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)
-            query = None
+            nodes, query = self._node_inputs(batch, x)
         nodes = nodes.to(net_dtype)
         levels = self.config.levels
         graph = batch.garments.graph_levels(levels)
@@ -158,24 +153,25 @@ class PhysDrape(nn.Module):
         return nodes, edges.to(net_dtype), graph, query
 
     @torch.no_grad()
-    def step_parts_at(self, batch: DrapeInput, x: Tensor | None = None) -> tuple[Tensor, ...]:
-        """The two-level solver's first-step parts at x (default X_init) that the network reads
-        with `config.step_inputs` (`StretchingSolver.step_parts`: the block-Jacobi and coarse
-        moves, and the truncated Newton move with `config.step_newton_iterations`), each
-        (ΣV, 3) [m] in x's dtype, on the body planes its inputs query."""
-        x = batch.x_init if x is None else x
-        return self._step_parts(batch, x, self._step_query(batch, x))
+    def node_inputs(self, batch: DrapeInput, x: Tensor | None = None) -> Tensor:
+        """The network's raw (un-normalised) node inputs at x (default X_init), in x's dtype: the
+        node features (`model.features.node_features`) and, with `config.step_inputs`, the
+        two-level solver's first-step parts there (`StretchingSolver.step_parts`)."""
+        return self._node_inputs(batch, batch.x_init if x is None else x)[0]
 
-    def _step_query(self, batch: DrapeInput, x: Tensor) -> SurfaceQuery:
-        """The body query of x's contact samples that the step parts and the vertices' distances are
-        read from: the face centroids only within the contact's reach (no contact term or block
-        sees the others)."""
+    def _node_inputs(self, batch: DrapeInput, x: Tensor) -> tuple[Tensor, SurfaceQuery | None]:
+        """`node_inputs` and, with `config.step_inputs`, the body query of x's contact samples."""
+        if not self.config.step_inputs:
+            query = batch.bodies.query(x, body_index=batch.body_index)
+            return node_features(x, batch.garments, batch.cloth, query.signed_distance), None
+        # one body query serves the vertices' distances and the step's contact: the face centroids
+        # only within the contact's reach (no contact term or block sees the others)
         reach = max(self.solver.contact_band, self.solver.margin)
-        return query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
-
-    def _step_parts(self, batch: DrapeInput, x: Tensor, query: SurfaceQuery) -> tuple[Tensor, ...]:
-        return self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
-                                      query=query, newton_iterations=self.config.step_newton_iterations)
+        query = query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
+        nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
+        parts = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
+                                       query=query, newton_iterations=self.config.step_newton_iterations)
+        return torch.cat([nodes, *(part.to(nodes.dtype) for part in parts)], dim=-1), query
 
     def _look_back(self, batch: DrapeInput, at: Tensor, query: SurfaceQuery) -> Callable[[Tensor], Tensor]:
         """The look-back stage's reader (`EncodeProcessDecode.forward_looking_back`): the network's

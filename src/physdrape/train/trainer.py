@@ -33,7 +33,7 @@ from physdrape.physics.metrics import b2g_percent
 from physdrape.progress import progress_bar
 from physdrape.train.data import DataConfig, TrainingBatch
 from physdrape.train.loss import LossConfig, drape_loss, lookahead_target
-from physdrape.train.step_parts_memo import StepPartsMemo
+from physdrape.train.node_inputs_memo import NodeInputsMemo
 
 
 class SampleSource(Protocol):
@@ -128,7 +128,7 @@ class Trainer:
         self.model = PhysDrape(config.model).to(getattr(torch, config.dtype)).to(self.device)
         if compile_network:
             self.model.gnn.compile_network()
-        self.step_parts = StepPartsMemo(self.model)  # the step inputs at each instance's X_init, computed once
+        self.node_inputs = NodeInputsMemo(self.model)  # the network's inputs at each instance's X_init, made once
         self.generator = torch.Generator().manual_seed(config.optim.seed)
         self.step = 0
         self.ddp = None
@@ -217,7 +217,7 @@ class Trainer:
         if sample.drape.device != self.device:
             sample = replace(sample, drape=sample.drape.to(self.device),
                              teacher=None if sample.teacher is None else sample.teacher.to(self.device))
-        return self.step_parts.attach(sample)
+        return self.node_inputs.attach(sample)
 
     def warm_up_normalizers(self) -> None:
         """Statistics-only warm-up (no optimiser steps); ranks all-reduce their sums."""
