@@ -1,6 +1,8 @@
 """Self-distillation: the network a fine-tune starts from, run as several passes, as the teacher of
 one pass (`physdrape.train.distill`, `LossConfig.distill_weight`)."""
 
+from dataclasses import replace
+
 import pytest
 import torch
 from drape_cases import make_input
@@ -60,6 +62,9 @@ def test_the_teacher_is_the_start_network_as_several_passes_held_per_instance(tm
     # without a cache's instance indices it is recomputed
     torch.testing.assert_close(teacher.drapes(TrainingBatch(batch)), target)
     assert calls == [1]
+    # node inputs the batch holds are the trained network's: the teacher makes its own
+    held = replace(batch, x_init_nodes=torch.zeros(batch.x_init.shape[0], 3))
+    torch.testing.assert_close(teacher.drapes(TrainingBatch(held, instances=(5, 6))), target)
     with pytest.raises(ValueError, match="passes must be ≥ 2"):
         PassesTeacher(path, 1, torch.device("cpu"))
 

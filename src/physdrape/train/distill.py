@@ -21,6 +21,7 @@ body and material fixed), so each instance's drape is computed once, on first us
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import torch
 from torch import Tensor
@@ -50,8 +51,9 @@ class PassesTeacher:
     def drapes(self, sample: TrainingBatch) -> Tensor:
         """The teacher's drape of each garment of the sample, packed as its vertices (ΣV, 3) [m],
         in the sample's dtype; held per cached instance (`TrainingBatch.instances`), recomputed
-        for samples drawn without a cache."""
-        batch = sample.drape
+        for samples drawn without a cache. The teacher makes its own inputs: node inputs the
+        batch holds are the trained network's (`DrapeInput.x_init_nodes`), not necessarily its."""
+        batch = replace(sample.drape, x_init_nodes=None)
         if sample.instances is None:
             return self._run(batch)
         missing = [k for k in sample.instances if k not in self._held]
