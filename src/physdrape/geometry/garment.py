@@ -8,9 +8,7 @@ runs on one garment or many with the same code. Positions x are state and live e
 
 from __future__ import annotations
 
-import collections
 import hashlib
-import threading
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -20,7 +18,7 @@ from torch import Tensor
 from physdrape.geometry import topology
 from physdrape.geometry.mesh import check_mesh
 from physdrape.geometry.normals import vertex_normals  # noqa: F401  (re-exported beside the garment types)
-from physdrape.tensor_memo import IdentityMemo
+from physdrape.tensor_memo import IdentityMemo, KeyedMemo
 
 
 def rest_frames(rest: Tensor, faces: Tensor) -> tuple[Tensor, Tensor]:
@@ -266,18 +264,7 @@ class GarmentBatch:
         if levels < 0:
             raise ValueError(f"levels must be ≥ 0, got {levels}")
         keys = [_topology_key(garment) for garment in self.garments]
-        key = (tuple(keys), levels, str(self.device))
-        with _GRAPH_LEVELS_LOCK:
-            graph = _GRAPH_LEVELS.get(key)
-            if graph is not None:
-                _GRAPH_LEVELS.move_to_end(key)
-                return graph
-        graph = self._graph_levels(levels, keys)
-        with _GRAPH_LEVELS_LOCK:
-            _GRAPH_LEVELS[key] = graph
-            while len(_GRAPH_LEVELS) > _GRAPH_LEVELS_SIZE:
-                _GRAPH_LEVELS.popitem(last=False)
-        return graph
+        return _GRAPH_LEVELS.get((tuple(keys), levels, str(self.device)), lambda: self._graph_levels(levels, keys))
 
     def _graph_levels(self, levels: int, keys: list[bytes]) -> GraphLevels:
         device = self.device
@@ -314,12 +301,10 @@ class GarmentBatch:
 
 #: Batches by their garments (a drape of the same garments packs them once).
 _PACKED = IdentityMemo(16)
-_COARSE_CACHE: dict[tuple[bytes, int], list[np.ndarray]] = {}
-_COARSE_CACHE_SIZE = 4096
+#: Each garment topology's coarse graphs by level count, the most recently used.
+_COARSE_CACHE = KeyedMemo(4096)
 #: A batch's graph levels by its garments' topologies (a drape of the same garments reuses them).
-_GRAPH_LEVELS: collections.OrderedDict[tuple, GraphLevels] = collections.OrderedDict()
-_GRAPH_LEVELS_SIZE = 16
-_GRAPH_LEVELS_LOCK = threading.Lock()
+_GRAPH_LEVELS = KeyedMemo(16)
 
 
 def _topology_key(garment: Garment) -> bytes:
@@ -332,10 +317,5 @@ def _coarse_graphs(garment: Garment, levels: int, topology_key: bytes | None = N
     """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across
     batches); topology_key: `_topology_key(garment)`, where the caller has it."""
     key = (_topology_key(garment) if topology_key is None else topology_key, levels)
-    graphs = _COARSE_CACHE.get(key)
-    if graphs is None:  # held locally: another thread's clear() cannot take it away before the return
-        graphs = topology.coarse_graphs(garment.edges.cpu().numpy(), garment.num_verts, levels)
-        if len(_COARSE_CACHE) >= _COARSE_CACHE_SIZE:
-            _COARSE_CACHE.clear()
-        _COARSE_CACHE[key] = graphs
-    return graphs
+    return _COARSE_CACHE.get(key, lambda: topology.coarse_graphs(garment.edges.cpu().numpy(), garment.num_verts,
+                                                                 levels))
