@@ -14,8 +14,14 @@ from physdrape.geometry.garment import GarmentBatch, GraphLevels
 from physdrape.geometry.proximity import BodySurface, SurfaceQuery
 from physdrape.model.collision_handler import CollisionHandler
 from physdrape.model.config import Displacement, ModelConfig, Variant
-from physdrape.model.features import EDGE_FEATURES, NEWTON_FEATURES, NODE_FEATURES, STEP_FEATURES
-from physdrape.model.features import edge_features, node_features
+from physdrape.model.features import (
+    EDGE_FEATURES,
+    NEWTON_FEATURES,
+    NODE_FEATURES,
+    STEP_FEATURES,
+    edge_features,
+    node_features,
+)
 from physdrape.model.gnn import EncodeProcessDecode
 from physdrape.model.normalizer import Normalizer
 from physdrape.model.stretching_solver import StretchingSolver, clip_moves
