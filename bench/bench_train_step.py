@@ -1,11 +1,12 @@
 """A training step of the shipped recipe's stage on the cached instances, beside an earlier commit.
 
     .venv/bin/python bench/bench_train_step.py [--config configs/global/gnn_step_inputs.yaml]
-        [--base COMMIT] [--steps 30] [--out results/bench_train_step]
+        [--base COMMIT] [--steps 30] [--compile] [--out results/bench_train_step]
 
 One process builds a `Trainer` of `--config` (its instance cache, `data.instances`, built before
 if missing) for this commit's package and, with `--base`, for that commit's (exported beside it,
-as `bench/bench_drape.py` does), one torch thread, eager network; each warms up its input
+as `bench/bench_drape.py` does), one torch thread, the network eager (`--compile`: compiled by
+`torch.compile` for both, as `physdrape train --compile` runs it); each warms up its input
 normalisers, then the two take turns step by step (the same seeds, so both draw the same instances
 at each step) for `--steps` steps each. This commit's trainer first meets every training instance
 once (`Trainer.node_inputs` then holds the network's inputs at each instance's X_init, as a run
@@ -36,13 +37,14 @@ from report import page_head, write_report
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _trainer(package: str, config_path: str, run_dir: str):
+def _trainer(package: str, config_path: str, run_dir: str, compile_network: bool):
     config_io = importlib.import_module(f"{package}.config_io")
     data = importlib.import_module(f"{package}.train.data")
     trainer_module = importlib.import_module(f"{package}.train.trainer")
     config = config_io.load_config(trainer_module.TrainConfig, config_path)
     source = data.DrapeSource(config.data, model=config.model)
-    trainer = trainer_module.Trainer(config, source, run_dir, progress=False, tensorboard=False)
+    trainer = trainer_module.Trainer(config, source, run_dir, progress=False, tensorboard=False,
+                                     compile_network=compile_network)
     trainer.warm_up_normalizers()
     return trainer, source
 
@@ -61,14 +63,16 @@ def _meet_every_instance(package: str, trainer, source) -> None:
                                                      tuple(picks)))
 
 
-def worker(packages: list[str], config_path: str, steps: int) -> dict[str, list[float]]:
+def worker(packages: list[str], config_path: str, steps: int, compile_network: bool) -> dict[str, list[float]]:
     import torch
 
     torch.set_num_threads(1)
     trainers = {}
     with tempfile.TemporaryDirectory() as tmp:
         for package in packages:
-            trainer, source = _trainer(package, config_path, f"{tmp}/{package}")
+            trainer, source = _trainer(package, config_path, f"{tmp}/{package}", compile_network)
+            if compile_network:
+                trainer.train_step()  # compiles the network's forward and backward, outside the timing
             if hasattr(trainer, "node_inputs"):
                 _meet_every_instance(package, trainer, source)
             trainers[package] = trainer
@@ -90,11 +94,12 @@ def main() -> None:
     parser.add_argument("--config", default="configs/global/gnn_step_inputs.yaml")
     parser.add_argument("--base", default=None)
     parser.add_argument("--steps", type=int, default=30)
+    parser.add_argument("--compile", action="store_true", help="both packages' networks compiled by torch.compile")
     parser.add_argument("--out", default="results/bench_train_step")
     parser.add_argument("--worker", nargs="+", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(worker(args.worker, args.config, args.steps)))
+        print(json.dumps(worker(args.worker, args.config, args.steps, args.compile)))
         return
     command, prov, head = page_head("A training step on the cached instances")
     with tempfile.TemporaryDirectory() as tmp:
@@ -105,7 +110,8 @@ def main() -> None:
         env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=os.pathsep.join(
             [*(str(p) for p in paths), *filter(None, [os.environ.get("PYTHONPATH")])]))
         proc = subprocess.run([sys.executable, __file__, "--config", args.config, "--steps", str(args.steps),
-                               "--worker", *packages], env=env, cwd=ROOT, capture_output=True, text=True)
+                               *(["--compile"] if args.compile else []), "--worker", *packages], env=env, cwd=ROOT,
+                              capture_output=True, text=True)
         if proc.returncode != 0:
             raise SystemExit(f"the timing process failed:\n{proc.stderr[-3000:]}")
         times = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -116,7 +122,8 @@ def main() -> None:
                               capture_output=True, text=True).stdout.strip()
     labels = {"physdrape": "this commit", "physdrape_base": f"base {base}"}
     lines = [*head,
-             f"Config `{args.config}` on its instance cache; one torch thread, eager network; {args.steps} steps per "
+             f"Config `{args.config}` on its instance cache; one torch thread, "
+             f"{'the network compiled (torch.compile)' if args.compile else 'eager network'}; {args.steps} steps per "
              "package after the normalisers' warm-up, the packages taking turns step by step on the same seeds; "
              f"load average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
              "| package | median step [ms] | min–max [ms] |", "|---|---:|---:|"]
@@ -127,7 +134,8 @@ def main() -> None:
         ratios = [b / t for t, b in zip(times["physdrape"], times["physdrape_base"])]
         lines += ["", f"Base / this commit, median of the paired steps: {statistics.median(ratios):.2f}."]
     write_report(args.out, lines, {"command": command, "provenance": prov, "config": args.config, "base": base,
-                                   "steps": args.steps, "load_average": list(load), "times_ms": times})
+                                   "steps": args.steps, "compile": args.compile, "load_average": list(load),
+                                   "times_ms": times})
 
 
 if __name__ == "__main__":
