@@ -144,6 +144,25 @@ def test_force_matches_central_differences_of_the_queried_energy(body):
         assert analytic == pytest.approx(fd, rel=1e-5)
 
 
+def test_the_penalty_energy_and_its_gradient_are_those_of_the_query_of_every_sample(body):
+    """The centroids it does not search (far from the body by their corners) add exactly 0."""
+    garment, x = _band(seed=1)
+    cloth = Cloth.build(garment)
+    vert_body = torch.zeros(garment.num_verts, dtype=torch.int64)
+    # the band as it is (in contact all round), moved 3 cm sideways (one side in the body, the far
+    # side's centroids not searched) and widened to a 5 cm gap (none searched, no energy)
+    for scale, shift in ((1.0, 0.0), (1.0, 0.03), (0.2 / 0.152, 0.0)):
+        xt = (x * torch.tensor([scale, 1.0, scale], dtype=x.dtype) + torch.tensor([shift, 0.0, 0.0], dtype=x.dtype))
+        xt.requires_grad_(True)
+        energy = penalty_contact_energy(xt, cloth, body, vert_body, stiffness=K_C, margin=EPS)
+        distance = query_samples(xt, garment.faces, body, vert_body).signed_distance
+        every = garment_energy(contact_energy(distance, stiffness=K_C, margin=EPS), cloth)
+        assert torch.equal(energy, every)
+        assert torch.equal(torch.autograd.grad(energy.sum(), xt)[0], torch.autograd.grad(every.sum(), xt)[0])
+    assert float(every.sum()) == 0.0 and float(penalty_contact_energy(x, cloth, body, vert_body, stiffness=K_C,
+                                                                       margin=EPS).sum()) > 0.0
+
+
 def test_gauss_newton_blocks_are_the_hessian_on_held_planes(body):
     garment, x = _band(seed=3)
     faces, num_verts = garment.faces, garment.num_verts

@@ -372,6 +372,11 @@ def contact_vertices(distance: Tensor, faces: Tensor, *, margin: float) -> Tenso
 def penalty_contact_energy(x: Tensor, cloth: Cloth, bodies: BodySurface, vert_body: Tensor, *,
                            stiffness: float = DEFAULT_STIFFNESS, margin: float = DEFAULT_MARGIN) -> Tensor:
     """E_c per garment [J] (G,) at positions x (ΣV, 3) [m], from a body query of the vertices and
-    face centroids; vert_body: body of each vertex (ΣV,). Differentiable in x."""
-    distance = query_samples(x, cloth.faces, bodies, vert_body).signed_distance.to(x.dtype)
+    face centroids; vert_body: body of each vertex (ΣV,). Differentiable in x.
+
+    The centroids whose corners put them at least ε from the body are not searched
+    (`query_samples_near` with reach ε): their penalty and its gradient are exactly 0 at their
+    lower bound as at their distance, so E_c and its gradient are those of the query of every
+    sample to the bit, for about two thirds of its time."""
+    distance = query_samples_near(x, cloth.faces, bodies, vert_body, reach=margin).signed_distance.to(x.dtype)
     return garment_energy(contact_energy(distance, stiffness=stiffness, margin=margin), cloth)
