@@ -242,7 +242,8 @@ class Draper:
     material = staticmethod(specs.material)
 
     def transfer(self, template: Template, rig: str):
-        """The garment's `SkinningTransfer` onto `rig` (fitted once, then cached)."""
+        """The garment's `SkinningTransfer` onto `rig` (fitted on first use, kept for the pipeline's
+        `TEMPLATES_KEPT` most recently used garments)."""
         return self.pipeline(rig).transfer(template)
 
     # ------------------------------------------------------------------ draping
