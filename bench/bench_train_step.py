@@ -10,7 +10,8 @@ as `bench/bench_drape.py` does), one torch thread, the network eager (`--compile
 normalisers, then the two take turns step by step (the same seeds, so both draw the same instances
 at each step) for `--steps` steps each. This commit's trainer first meets every training instance
 once (`Trainer.node_inputs` then holds the network's inputs at each instance's X_init, as a run
-does after its first few hundred steps): the rows are the steady state of a long run. Each step is made as
+does after its first few hundred steps), and each package builds every instance's coarse space once (kept
+as far as the package keeps them): the rows are the steady state of a long run. Each step is made as
 the package's own `Trainer.run` makes it (where `train_step` takes `measure`, the batch's B2G is
 measured at the steps the run logs, every `optim.log_every`, only). Prints and writes
 <out>.md and <out>.json: the median step per package, the median of the paired ratios, the load
@@ -50,17 +51,23 @@ def _trainer(package: str, config_path: str, run_dir: str, compile_network: bool
 
 
 def _meet_every_instance(package: str, trainer, source) -> None:
-    """Hand each training instance to the trainer's memo of the network's inputs once (4 per batch)."""
+    """Meet each training instance once (4 per batch), as a long run has: its garment's coarse
+    space built (kept as far as the package keeps them) and, where the trainer holds the network's
+    inputs, those handed to it."""
     pipeline = importlib.import_module(f"{package}.pipeline")
     physics = importlib.import_module(f"{package}.physics")
     data = importlib.import_module(f"{package}.train.data")
+    coarse_space = importlib.import_module(f"{package}.physics.coarse_space")
+    model = trainer.config.model
     count = len(source._train)
     for start in range(0, count, 4):
         picks = list(range(start, min(count, start + 4)))
         jobs = [pipeline.Job(source.templates[source._train[i].garment], source._train[i].body,
                              physics.Material(**source._train[i].material), source._tensors[i][0]) for i in picks]
-        trainer.node_inputs.attach(data.TrainingBatch(source.pipeline.build(jobs, source.posed_pool()), None,
-                                                     tuple(picks)))
+        batch = source.pipeline.build(jobs, source.posed_pool())
+        coarse_space.CoarseSpace(batch.cloth, levels=model.coarse_levels, smoothing=model.coarse_smoothing)
+        if hasattr(trainer, "node_inputs"):
+            trainer.node_inputs.attach(data.TrainingBatch(batch, None, tuple(picks)))
 
 
 def worker(packages: list[str], config_path: str, steps: int, compile_network: bool) -> dict[str, list[float]]:
@@ -73,8 +80,7 @@ def worker(packages: list[str], config_path: str, steps: int, compile_network: b
             trainer, source = _trainer(package, config_path, f"{tmp}/{package}", compile_network)
             if compile_network:
                 trainer.train_step()  # compiles the network's forward and backward, outside the timing
-            if hasattr(trainer, "node_inputs"):
-                _meet_every_instance(package, trainer, source)
+            _meet_every_instance(package, trainer, source)
             trainers[package] = trainer
         times = {package: [] for package in packages}
         for k in range(steps):
