@@ -305,26 +305,6 @@ def test_batches_of_one_topology_share_their_structure_and_no_other():
     torch.testing.assert_close(first.solve(r), expected, rtol=0, atol=0)
 
 
-def test_keep_garments_keeps_that_many_garment_coarse_spaces_and_never_fewer(monkeypatch):
-    from physdrape.physics import coarse_space
-
-    monkeypatch.setattr(coarse_space, "_GALERKIN_SIZE", 2)
-    monkeypatch.setattr(coarse_space, "_GALERKIN", coarse_space.collections.OrderedDict())
-    tubes = [Garment.from_mesh(*open_cylinder(3, 8 + k, radius=0.1, length=0.1)) for k in range(4)]
-
-    def built() -> list:
-        return [coarse_space._garment_galerkin(t.faces.numpy(), t.num_verts, np.zeros((0, 2), np.int64), 2, 2)
-                for t in tubes]
-
-    first = built()
-    assert len(coarse_space._GALERKIN) == 2 and [a is b for a, b in zip(first, built())] == [False] * 4
-    coarse_space.keep_garments(4)
-    kept = built()
-    assert len(coarse_space._GALERKIN) == 4 and all(a is b for a, b in zip(kept, built()))  # all four kept
-    coarse_space.keep_garments(1)  # never fewer
-    assert coarse_space._GALERKIN_SIZE == 4
-
-
 def test_the_band_factorisation_and_solve_run_on_one_blas_thread(monkeypatch):
     """The solver brings its own threads; SciPy's LAPACK must not start threads of its own beside
     them (they would take the cores the solver's threads run on)."""

@@ -71,7 +71,7 @@ from physdrape.physics.majorant import pair_blocks as majorant_pair_blocks
 from physdrape.physics.majorant import pair_product
 from physdrape.threads import one_blas_thread
 
-__all__ = ["CoarseSpace", "keep_garments"]
+__all__ = ["CoarseSpace"]
 
 #: Most patches of one garment: a larger garment gets more coarsening levels, so that its coarse
 #: factor stays small (1,200 patches: 3,600 unknowns per refresh, in a band).
@@ -165,15 +165,6 @@ _GALERKIN_SIZE = 128
 #: Guards `_GALERKIN` and `_STRUCTURES` (batches draped on parallel threads share them); held
 #: while a missing entry is built, so that each is built once.
 _CACHE_LOCK = threading.RLock()
-
-
-def keep_garments(count: int) -> None:
-    """Keep the coarse spaces of at least `count` garment topologies from now on (never fewer than
-    before): a training source whose steps draw any of its garments keeps them all, so that a
-    solver in the loop does not rebuild the coarse space of every garment it draws."""
-    global _GALERKIN_SIZE
-    with _CACHE_LOCK:
-        _GALERKIN_SIZE = max(_GALERKIN_SIZE, int(count))
 
 
 def _garment_galerkin(faces: np.ndarray, num_verts: int, linked: np.ndarray, levels: int,

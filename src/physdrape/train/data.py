@@ -27,7 +27,6 @@ from physdrape.garments.split import SPLIT_FORMAT, load_or_generate
 from physdrape.model import DrapeInput
 from physdrape.model.config import ModelConfig
 from physdrape.physics import Material
-from physdrape.physics.coarse_space import keep_garments
 from physdrape.pipeline import DrapePipeline, Job, PosedBodies, Template
 from physdrape.train.instances import InstanceCache, InstanceCacheError, part_pool
 from physdrape.train.materials import draw_material
@@ -122,9 +121,8 @@ class DrapeSource:
         if not self.templates:
             raise ValueError("no garment templates to train on: check DataConfig.split_dir / subset / max_garments")
         self.pool = part_pool(self.body, config, "train")
-        # every garment's rest state and coarse space kept: each step draws instances of any of them
+        # every garment's rest state kept: each step draws instances of any of them
         self.pipeline = DrapePipeline(self.body, dtype=self.dtype, templates_kept=len(self.templates))
-        keep_garments(len(self.templates))
         self._posed: PosedBodies | None = None
         self.cache = self.validation_pool = None
         if config.instances:
