@@ -17,6 +17,7 @@ per sampled body.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,20 @@ class TrainingBatch:
     drape: DrapeInput
     teacher: torch.Tensor | None = None
     instances: tuple[int, ...] | None = None
+
+
+def held_per_instance(held: dict[int, torch.Tensor], sample: TrainingBatch,
+                      make: Callable[[], torch.Tensor]) -> torch.Tensor:
+    """A per-vertex quantity of a sample drawn from the instance cache (ΣV, ...), held per instance
+    in `held` (by `TrainingBatch.instances`): where any of the sample's instances is not held yet,
+    make() computes it on the sample's whole batch and each instance keeps its garment's rows;
+    returned as the held rows in the sample's order."""
+    if any(k not in held for k in sample.instances):
+        offsets = sample.drape.garments.vert_offsets.tolist()
+        values = make()
+        for g, key in enumerate(sample.instances):
+            held.setdefault(key, values[offsets[g]:offsets[g + 1]].clone())
+    return torch.cat([held[key] for key in sample.instances])
 
 
 def default_split_dir(seed: int = 0) -> Path:

@@ -27,7 +27,7 @@ import torch
 from torch import Tensor
 
 from physdrape.model.config import Variant
-from physdrape.train.data import TrainingBatch
+from physdrape.train.data import TrainingBatch, held_per_instance
 
 __all__ = ["PassesTeacher"]
 
@@ -56,13 +56,7 @@ class PassesTeacher:
         batch = replace(sample.drape, x_init_nodes=None)
         if sample.instances is None:
             return self._run(batch)
-        missing = [k for k in sample.instances if k not in self._held]
-        if missing:
-            offsets = batch.garments.vert_offsets.tolist()
-            x = self._run(batch)
-            for g, key in enumerate(sample.instances):
-                self._held.setdefault(key, x[offsets[g]:offsets[g + 1]].clone())
-        return torch.cat([self._held[key] for key in sample.instances])
+        return held_per_instance(self._held, sample, lambda: self._run(batch))
 
     def _run(self, batch) -> Tensor:
         return self.model(batch).x_gnn.to(batch.x_init.dtype)

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import torch
 from torch import Tensor
 
-from physdrape.train.data import TrainingBatch
+from physdrape.train.data import TrainingBatch, held_per_instance
 
 __all__ = ["NodeInputsMemo"]
 
@@ -34,11 +33,5 @@ class NodeInputsMemo:
         held yet computed on its whole batch first); a sample drawn without a cache unchanged."""
         if sample.instances is None:
             return sample
-        batch = sample.drape
-        if any(k not in self._held for k in sample.instances):
-            offsets = batch.garments.vert_offsets.tolist()
-            nodes = self.model.node_inputs(batch)
-            for g, key in enumerate(sample.instances):
-                self._held.setdefault(key, nodes[offsets[g]:offsets[g + 1]].clone())
-        nodes = torch.cat([self._held[key] for key in sample.instances])
-        return replace(sample, drape=replace(batch, x_init_nodes=nodes))
+        nodes = held_per_instance(self._held, sample, lambda: self.model.node_inputs(sample.drape))
+        return replace(sample, drape=replace(sample.drape, x_init_nodes=nodes))
