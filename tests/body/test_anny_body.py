@@ -53,6 +53,8 @@ def test_rest_pose_reproduces_canonical(anny_body, dtype):
     assert (st.rest_verts - canon).abs().max() < tol
     eye = torch.eye(4, dtype=dtype)
     assert (st.vertex_transforms - eye).abs().max() < tol
+    canon += 1.0  # each call hands out its own copy of the canonical body it formed once
+    assert (anny_body.canonical_verts(dtype=dtype) - st.rest_verts[0]).abs().max() < tol
 
 
 @pytest.mark.parametrize("dtype,tol", [(torch.float32, 1e-5), (torch.float64, 1e-12)])

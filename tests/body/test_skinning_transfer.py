@@ -248,6 +248,26 @@ def test_a_body_search_made_once_fits_every_template_as_a_fresh_one(limb_and_sle
         SkinningTransfer.fit(body, body_faces, sleeve, sleeve_faces, search=BodySearch.of(other, other_faces))
 
 
+def test_smoothing_is_its_definition(limb_and_sleeve):
+    # the fit smooths the nearest-triangle weights W by passes W ← (1 − a) W + a S W, S the mean
+    # over each vertex's mesh neighbours, then drops influences under prune_below and renormalises
+    body, body_faces, _, sleeve, sleeve_faces, transfer = limb_and_sleeve
+    raw = SkinningTransfer.fit(body, body_faces, sleeve, sleeve_faces, k=8, smoothing_iterations=0, prune_below=0.0)
+    w = raw.weight_matrix()
+    neighbours = torch.zeros(len(sleeve), len(sleeve), dtype=torch.float64)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        neighbours[sleeve_faces[:, i], sleeve_faces[:, j]] = 1.0
+        neighbours[sleeve_faces[:, j], sleeve_faces[:, i]] = 1.0
+    mean = neighbours / neighbours.sum(1, keepdim=True)
+    for _ in range(10):
+        w = 0.5 * w + 0.5 * (mean @ w)
+    w = torch.where(w < 1e-4, torch.zeros_like(w), w)
+    w = w / w.sum(1, keepdim=True)
+    got = transfer.weight_matrix()
+    assert torch.equal(got != 0, w != 0)
+    assert torch.allclose(got, w, rtol=1e-12, atol=1e-15)
+
+
 def test_fit_and_apply_reject_bad_inputs(limb_and_sleeve):
     body, body_faces, w2, sleeve, sleeve_faces, transfer = limb_and_sleeve
     with pytest.raises(ValueError, match=r"must be in \[0, "):

@@ -20,6 +20,26 @@ def test_two_triangles():
     assert edge_index.shape == (2, 10)
 
 
+def test_edges_are_found_once_per_face_content_and_shared_read_only():
+    _, faces = open_cylinder(4, 8)
+    edges = topology.undirected_edges(faces)
+    again = topology.undirected_edges(faces.astype(np.int32).copy())  # the same faces, another array and dtype
+    np.testing.assert_array_equal(again, edges)
+    assert topology.digest(faces) == topology.digest(faces.astype(np.int32))
+    flipped = faces[:, [0, 2, 1]]
+    assert topology.digest(flipped) != topology.digest(faces)
+    # what is kept is shared: the grouped half-edges cannot be written by a caller
+    groups = topology._edge_groups(faces)
+    assert groups is topology._edge_groups(faces.copy())
+    assert all(not value.flags.writeable for value in groups if isinstance(value, np.ndarray))
+    # a mesh of other faces gets its own
+    _, other = open_cylinder(3, 6)
+    assert len(topology.undirected_edges(other)) != len(edges)
+    boundary = topology.boundary_edges(flipped)
+    np.testing.assert_array_equal(np.sort(boundary, axis=1), np.sort(topology.boundary_edges(faces), axis=1))
+    assert not (boundary == topology.boundary_edges(faces)).all()  # each in its own winding
+
+
 def test_tube_has_two_boundary_loops_and_euler_characteristic_zero():
     verts, faces = open_cylinder(4, 8)
     loops = topology.boundary_loops(faces)

@@ -312,8 +312,12 @@ class AnnyBody(BodyModel):
         return c["tails"] + (coeff @ c["tails_blend"]).reshape(shape.shape[0], -1, 3)
 
     def canonical_verts(self, *, dtype: torch.dtype = torch.float32) -> Tensor:
-        """The canonical body (all phenotypes 0.5, rest A-pose) [m], shape (Vb, 3)."""
-        return self.rest_verts(self.default_shape(1, dtype=dtype))[0]
+        """The canonical body (all phenotypes 0.5, rest A-pose) [m], shape (Vb, 3): a copy of the
+        one formed on first use per dtype (each new garment's fit and checks ask for it)."""
+        key = ("canonical", dtype)
+        if key not in self._cast:
+            self._cast[key] = self.rest_verts(self.default_shape(1, dtype=dtype))[0]
+        return self._cast[key].clone()
 
     def __call__(self, shape: Tensor, pose: Tensor, *, transl: Tensor | None = None) -> BodyState:
         """Pose and shape a batch of bodies.

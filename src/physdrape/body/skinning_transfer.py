@@ -264,12 +264,12 @@ class SkinningTransfer:
 
         # 2. Smoothing over the garment graph.
         if smoothing_iterations:
-            smoother = _garment_smoother(fg, num_garment)
-            for _ in range(smoothing_iterations):  # (1 − a) W + a S W, the products scaled in place
-                spread = smoother @ mat
-                spread.data *= smoothing_strength
-                mat.data *= 1.0 - smoothing_strength  # this function's own matrix (normalised above, or a sum)
-                mat = mat + spread
+            # each pass W ← (1 − a) W + a S W, as one sparse product with (1 − a) I + a S (one
+            # pass over W's entries a pass, not a product, two scalings and a sum)
+            step = (sp.identity(num_garment, format="csr") * (1.0 - smoothing_strength)
+                    + _garment_smoother(fg, num_garment) * smoothing_strength).tocsr()
+            for _ in range(smoothing_iterations):
+                mat = step @ mat
         mat = mat.tocsr()
         mat.eliminate_zeros()
 

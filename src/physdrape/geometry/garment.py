@@ -8,7 +8,6 @@ runs on one garment or many with the same code. Positions x are state and live e
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -309,8 +308,7 @@ _GRAPH_LEVELS = KeyedMemo(16)
 
 def _topology_key(garment: Garment) -> bytes:
     """A digest of a garment's edges and vertex count."""
-    edges = garment.edges.cpu().numpy()
-    return hashlib.blake2b(edges.tobytes(), digest_size=16).digest() + bytes(str(garment.num_verts), "ascii")
+    return topology.digest(garment.edges.cpu().numpy()) + bytes(str(garment.num_verts), "ascii")
 
 
 def _coarse_graphs(garment: Garment, levels: int, topology_key: bytes | None = None) -> list[np.ndarray]:

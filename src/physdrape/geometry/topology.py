@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import collections
+import hashlib
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee, shortest_path
+
+from physdrape.tensor_memo import KeyedMemo
 
 
 def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -23,8 +26,34 @@ def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ab, face, opposite
 
 
+#: The edge groups of the most recently seen face arrays, by content: one garment's topology is
+#: asked for by its transfer fit, its graph, its pieces, its closures and its coarse space in turn.
+_EDGE_GROUPS = KeyedMemo(8)
+
+
 def _edge_groups(faces: np.ndarray):
-    """Half-edges grouped by undirected edge: (sorted ab, face, opposite, unique keys, start, count)."""
+    """Half-edges grouped by undirected edge: (sorted ab, face, opposite, unique keys, start, count,
+    number of vertices), read-only arrays (computed once per face array's content)."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    return _EDGE_GROUPS.get((faces.shape, digest(faces)), lambda: _read_only(_group_edges(faces)))
+
+
+def digest(array: np.ndarray) -> bytes:
+    """A 16-byte digest of an index array's values (as int64, whatever its integer dtype), the
+    key under which what is derived from a mesh's faces or edges is kept."""
+    return hashlib.blake2b(np.ascontiguousarray(array, np.int64).view(np.uint8), digest_size=16).digest()
+
+
+def _read_only(values: tuple) -> tuple:
+    """`values` with every array among them made read-only (they are shared by every caller)."""
+    for value in values:
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return values
+
+
+def _group_edges(faces: np.ndarray):
+    """`_edge_groups`, computed."""
     ab, face, opposite = _half_edges(faces)
     num_verts = int(faces.max()) + 1 if len(faces) else 0
     lo, hi = ab.min(axis=1), ab.max(axis=1)

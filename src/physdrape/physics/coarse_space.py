@@ -48,7 +48,6 @@ factors held there (the band factors as NumPy arrays).
 from __future__ import annotations
 
 import collections
-import hashlib
 import threading
 import warnings
 from dataclasses import dataclass
@@ -170,7 +169,7 @@ _CACHE_LOCK = threading.RLock()
 def _garment_galerkin(faces: np.ndarray, num_verts: int, linked: np.ndarray, levels: int,
                       smoothing: int) -> _GarmentGalerkin:
     """The coarse space of one garment (local vertex ids; links (L, 2)), cached by topology and links."""
-    key = (_digest(faces), faces.shape[0], _digest(linked), num_verts, levels, smoothing)
+    key = (topology.digest(faces), faces.shape[0], topology.digest(linked), num_verts, levels, smoothing)
     with _CACHE_LOCK:
         if key not in _GALERKIN:
             prolong = _garment_prolongation(faces, num_verts, levels, smoothing)
@@ -196,10 +195,6 @@ def _garment_galerkin(faces: np.ndarray, num_verts: int, linked: np.ndarray, lev
                 _GALERKIN.popitem(last=False)
         _GALERKIN.move_to_end(key)
         return _GALERKIN[key]
-
-
-def _digest(array: np.ndarray) -> bytes:
-    return hashlib.blake2b(np.ascontiguousarray(array, np.int64).tobytes(), digest_size=16).digest()
 
 
 def _sparse_csr(matrix: sp.csr_matrix, device: torch.device) -> Tensor:
@@ -348,8 +343,8 @@ class CoarseSpace:
         face_counts = tuple(torch.bincount(cloth.face_garment, minlength=cloth.num_garments).tolist())
         self._links = links(cloth)
         linked = np.zeros((0, 2), np.int64) if self._links is None else self._links.pairs.cpu().numpy()
-        key = (_digest(faces), faces.shape[0], _digest(linked), vert_counts, face_counts, levels, smoothing,
-               str(cloth.device))
+        key = (topology.digest(faces), faces.shape[0], topology.digest(linked), vert_counts, face_counts, levels,
+               smoothing, str(cloth.device))
         with _CACHE_LOCK:
             if key not in _STRUCTURES:
                 # the CPU factorises each garment's band (LAPACK), CUDA its dense matrix (cuSOLVER)
