@@ -90,6 +90,15 @@ def test_coarse_graphs_halve_the_nodes_double_the_edges_and_stay_connected():
     again = topology.coarse_graphs(edges, len(verts), 3)
     assert all(np.array_equal(a, b) for a, b in zip(levels, again))
     assert topology.coarse_graphs(edges, len(verts), 0) == []
+    # a shallower hierarchy is a deeper one's start, built once and shared read-only; the same
+    # levels as a build of exactly that depth
+    shallower = topology.coarse_graphs(edges, len(verts), 2)
+    assert len(shallower) == 2 and all(a is b for a, b in zip(levels, shallower))
+    deeper = topology.coarse_graphs(edges, len(verts), 6)
+    assert len(deeper) > 3 and all(np.array_equal(a, b) for a, b in zip(levels, deeper))
+    assert not any(level.flags.writeable for level in levels + deeper)
+    built = topology._coarsen(edges, len(verts), 2)
+    assert all(np.array_equal(a, b) for a, (_, b) in zip(levels, built)) and len(built) == 2
 
 
 def test_aggregates_partition_the_mesh_into_connected_patches():

@@ -259,18 +259,20 @@ class GarmentBatch:
         """The mesh graph (level 0) and `levels` coarser graphs over subsets of its vertices
         (`topology.coarse_graphs`, per garment), both edge directions, for hierarchical message
         passing. A garment whose hierarchy ends early contributes nothing to the deeper levels.
-        The coarsening runs on the host (numpy, cached by topology); the graphs are on the batch's device."""
+        The coarsening runs on the host (numpy, kept per topology by `topology.coarse_graphs`); the
+        graphs are on the batch's device."""
         if levels < 0:
             raise ValueError(f"levels must be ≥ 0, got {levels}")
         keys = [_topology_key(garment) for garment in self.garments]
-        return _GRAPH_LEVELS.get((tuple(keys), levels, str(self.device)), lambda: self._graph_levels(levels, keys))
+        return _GRAPH_LEVELS.get((tuple(keys), levels, str(self.device)), lambda: self._graph_levels(levels))
 
-    def _graph_levels(self, levels: int, keys: list[bytes]) -> GraphLevels:
+    def _graph_levels(self, levels: int) -> GraphLevels:
         device = self.device
         per_level: list[list[Tensor]] = [[] for _ in range(levels)]
         offsets = self.vert_offsets.tolist()
-        for g, (garment, key) in enumerate(zip(self.garments, keys)):
-            for l, edges in enumerate(_coarse_graphs(garment, levels, key)):
+        for g, garment in enumerate(self.garments):
+            coarse = topology.coarse_graphs(garment.edges.cpu().numpy(), garment.num_verts, levels)
+            for l, edges in enumerate(coarse):
                 per_level[l].append(torch.from_numpy(topology.bidirectional_edges(edges)) + offsets[g])
         edge_index, nodes, local = [self.edge_index], [torch.arange(self.num_verts, device=device)], [self.edge_index]
         for parts in per_level:
@@ -300,8 +302,6 @@ class GarmentBatch:
 
 #: Batches by their garments (a drape of the same garments packs them once).
 _PACKED = IdentityMemo(16)
-#: Each garment topology's coarse graphs by level count, the most recently used.
-_COARSE_CACHE = KeyedMemo(4096)
 #: A batch's graph levels by its garments' topologies (a drape of the same garments reuses them).
 _GRAPH_LEVELS = KeyedMemo(16)
 
@@ -309,11 +309,3 @@ _GRAPH_LEVELS = KeyedMemo(16)
 def _topology_key(garment: Garment) -> bytes:
     """A digest of a garment's edges and vertex count."""
     return topology.digest(garment.edges.cpu().numpy()) + bytes(str(garment.num_verts), "ascii")
-
-
-def _coarse_graphs(garment: Garment, levels: int, topology_key: bytes | None = None) -> list[np.ndarray]:
-    """`topology.coarse_graphs` of a garment's edges, cached by topology (garments recur across
-    batches); topology_key: `_topology_key(garment)`, where the caller has it."""
-    key = (_topology_key(garment) if topology_key is None else topology_key, levels)
-    return _COARSE_CACHE.get(key, lambda: topology.coarse_graphs(garment.edges.cpu().numpy(), garment.num_verts,
-                                                                 levels))

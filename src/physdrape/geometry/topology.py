@@ -227,8 +227,26 @@ def coarse_graphs(edges: np.ndarray, num_verts: int, levels: int) -> list[np.nda
     return [level_edges for _, level_edges in _coarse_levels(edges, num_verts, levels)]
 
 
+#: Levels a mesh's coarse hierarchy is built to at least, so that the coarse space's patches (two
+#: levels) and the network's graph (four) share one build.
+HIERARCHY_DEPTH = 4
+#: The coarse hierarchies of the most recently seen edge arrays, by content and depth (a few tens of
+#: kilobytes each: a training set's garments recur across its batches, and all of them are kept).
+_HIERARCHIES = KeyedMemo(4096)
+
+
 def _coarse_levels(edges: np.ndarray, num_verts: int, levels: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(nodes, edges) of each level of `coarse_graphs`, nodes as sorted mesh vertex ids."""
+    """(nodes, edges) of each level of `coarse_graphs`, nodes as sorted mesh vertex ids, read-only
+    (a level depends on the levels above it only: a shallower hierarchy is a deeper one's start)."""
+    edges = np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2))
+    depth = max(levels, HIERARCHY_DEPTH)
+    hierarchy = _HIERARCHIES.get((digest(edges), num_verts, depth),
+                                 lambda: [_read_only(level) for level in _coarsen(edges, num_verts, depth)])
+    return hierarchy[:levels]
+
+
+def _coarsen(edges: np.ndarray, num_verts: int, levels: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`_coarse_levels`, computed."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
 
