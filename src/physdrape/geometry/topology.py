@@ -237,7 +237,7 @@ _HIERARCHIES = KeyedMemo(4096)
 
 def _coarse_levels(edges: np.ndarray, num_verts: int, levels: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(nodes, edges) of each level of `coarse_graphs`, nodes as sorted mesh vertex ids, read-only
-    (a level depends on the levels above it only: a shallower hierarchy is a deeper one's start)."""
+    (a level depends on the finer levels only: a shallower hierarchy is a deeper one's start)."""
     edges = np.ascontiguousarray(np.asarray(edges, dtype=np.int64).reshape(-1, 2))
     depth = max(levels, HIERARCHY_DEPTH)
     hierarchy = _HIERARCHIES.get((digest(edges), num_verts, depth),
