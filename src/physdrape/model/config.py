@@ -121,6 +121,10 @@ class ModelConfig:
     settling as a whole on smooth patches), six more node features. Message passing alone sees
     the forces, which the stiff local strain dominates; the coarse move says where the garment
     as a whole is pulled. Needs the two_level solver.
+    body_normal_inputs: the network also reads, per vertex, the body's unit outward direction at
+    the vertex's closest body point (the body query's normal), three more node features after the
+    eleven of Eq. 6: the garment's own normal and distance do not say which way the body slopes
+    under a loose garment, which decides where the garment slides as it settles.
     step_newton_iterations: with step_inputs, k > 0 adds three more node features: the first
     step's truncated Newton move, k preconditioned conjugate-gradient iterations on the quadratic
     model of the energy at the input positions (as the solver's first steps at inference,
@@ -183,6 +187,7 @@ class ModelConfig:
     passes: int = 1
     eval_move_gain: float = 1.0
     step_inputs: bool = False
+    body_normal_inputs: bool = False
     step_newton_iterations: int = 0
     look_back_blocks: int = 0
     normalizer_accumulations: int = 100

@@ -13,6 +13,8 @@ from physdrape.tensor_memo import IdentityMemo
 #: Material inputs are logged after this floor (λ may be 0 for a fabric without area stiffness).
 MATERIAL_FLOOR = 1e-12
 NODE_FEATURES = 11  # normal (3), signed distance (1), f_int (3), log μ, log λ, log k_bend, log m_i
+#: With `ModelConfig.body_normal_inputs`: the body's outward direction at each vertex's closest point (3).
+BODY_FEATURES = 3
 #: With `ModelConfig.step_inputs`: the block-Jacobi move (3) and the coarse move (3) of the solver's first step.
 STEP_FEATURES = 6
 #: With `ModelConfig.step_newton_iterations`: the first step's truncated Newton move (3).

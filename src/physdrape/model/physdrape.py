@@ -15,6 +15,7 @@ from physdrape.geometry.proximity import BodySurface, SurfaceQuery
 from physdrape.model.collision_handler import CollisionHandler
 from physdrape.model.config import Displacement, ModelConfig, Variant
 from physdrape.model.features import (
+    BODY_FEATURES,
     EDGE_FEATURES,
     NEWTON_FEATURES,
     NODE_FEATURES,
@@ -102,7 +103,8 @@ class PhysDrape(nn.Module):
     def __init__(self, config: ModelConfig = ModelConfig()) -> None:
         super().__init__()
         self.config = config
-        node_in = NODE_FEATURES + (STEP_FEATURES if config.step_inputs else 0)
+        node_in = NODE_FEATURES + (BODY_FEATURES if config.body_normal_inputs else 0)
+        node_in += STEP_FEATURES if config.step_inputs else 0
         node_in += NEWTON_FEATURES if config.step_newton_iterations else 0
         self.node_normalizer = Normalizer(node_in, max_accumulations=config.normalizer_accumulations)
         edge_in = EDGE_FEATURES + (config.levels + 1 if config.levels else 0)
@@ -169,15 +171,24 @@ class PhysDrape(nn.Module):
         """`node_inputs` and, with `config.step_inputs`, the body query of x's contact samples."""
         if not self.config.step_inputs:
             query = batch.bodies.query(x, body_index=batch.body_index)
-            return node_features(x, batch.garments, batch.cloth, query.signed_distance), None
+            nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance)
+            return self._with_body_normals(nodes, query), None
         # one body query serves the vertices' distances and the step's contact: the face centroids
         # only within the contact's reach (no contact term or block sees the others)
         reach = max(self.solver.contact_band, self.solver.margin)
         query = query_samples_near(x.detach(), batch.cloth.faces, batch.bodies, batch.body_index, reach=reach)
         nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
+        nodes = self._with_body_normals(nodes, query)
         parts = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
                                        query=query, newton_iterations=self.config.step_newton_iterations)
         return torch.cat([nodes, *(part.to(nodes.dtype) for part in parts)], dim=-1), query
+
+    def _with_body_normals(self, nodes: Tensor, query: SurfaceQuery) -> Tensor:
+        """The node features (ΣV, 11) and, with `config.body_normal_inputs`, the body's outward
+        direction at each vertex's closest point (the first ΣV rows of the query)."""
+        if not self.config.body_normal_inputs:
+            return nodes
+        return torch.cat([nodes, query.normal[:nodes.shape[0]].to(nodes.dtype)], dim=-1)
 
     def _look_back(self, batch: DrapeInput, at: Tensor, query: SurfaceQuery) -> Callable[[Tensor], Tensor]:
         """The look-back stage's reader (`EncodeProcessDecode.forward_looking_back`): the network's
