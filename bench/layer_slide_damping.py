@@ -1,14 +1,15 @@
 """What the layer pairs' tangential preconditioner share β costs and buys on the MakeHuman suits.
 
-Run: .venv/bin/python bench/layer_slide_damping.py [--betas 0.1 0.03 0.01 0] [--steps 3 15 60]
-     [--makehuman ../shared/data/makehuman_cc0] [--eval results/eval.json]
+Run: .venv/bin/python bench/layer_slide_damping.py [--part solver|inputs] [--betas 0.1 0.03 0.01 0]
+     [--steps 3 15 60] [--makehuman ../shared/data/makehuman_cc0] [--eval results/eval.json]
      [--checkpoint src/physdrape/assets/models/cpu_default] [--out results/layer_slide_damping]
 
 A layer pair's block in the solver's preconditioner is k (n nᵀ + β (I − n nᵀ)) with β =
 `physics.forces.LAYER_SLIDE_DAMPING`: the energy resists only the outer piece's approach along n,
 and β slows the pieces' relative sliding, which the pairs (found on the template) describe only
-while it is small. The preconditioner also makes the solver's first step that the network reads
-among its inputs, so β moves every row. Per β (set on the module for the run): the suits
+while it is small. `--part solver` sets the solver's β (`physics.forces.LAYER_SLIDE_DAMPING`),
+`--part inputs` the β of the first step that the network reads among its inputs
+(`physdrape.model.physdrape.INPUT_LAYER_SLIDE`), each on its module for the run. Per β: the suits
 (`physdrape eval --makehuman`'s instances and wear) at GNN only and the model at each T, the set's
 mean E_total over the references' mean of the evaluation record `--eval` (as `results/eval.md`
 gives it) and the piece crossings summed over the suits (face pairs of different pieces that
@@ -27,6 +28,7 @@ import torch
 from eval_record import suit_instances
 from report import page_head, write_report
 
+import physdrape.model.physdrape as physdrape_model
 import physdrape.physics.forces as forces
 from physdrape.api.specs import garment_template
 from physdrape.checkpoint import load_model
@@ -38,6 +40,8 @@ from physdrape.model import Variant
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--part", choices=["solver", "inputs"], default="solver",
+                        help="whose β to set: the solver's preconditioner, or that of the step the network reads")
     parser.add_argument("--betas", type=float, nargs="+", default=[0.1, 0.03, 0.01, 0.0])
     parser.add_argument("--steps", type=int, nargs="+", default=[3, 15, 60])
     parser.add_argument("--makehuman", default="../shared/data/makehuman_cc0")
@@ -57,12 +61,13 @@ def main() -> None:
         faces = np.asarray(template.faces, np.int64)
         meshes.append((faces, garment_parts(template.verts, faces).piece))
     reference = float(np.mean([r["energy_total"] for r in references]))
-    shipped_beta = forces.LAYER_SLIDE_DAMPING
+    module, name = (forces, "LAYER_SLIDE_DAMPING") if args.part == "solver" else (physdrape_model, "INPUT_LAYER_SLIDE")
+    shipped_beta = getattr(module, name)
     rows = []
     columns = [("gnn_only", None)] + [(f"t{t}", t) for t in args.steps]
     try:
         for beta in args.betas:
-            forces.LAYER_SLIDE_DAMPING = beta
+            setattr(module, name, beta)
             row = {"beta": beta, "energy_ratio": {}, "crossings": {}, "per_suit": []}
             energies = {name: [] for name, _ in columns}
             crossings = {name: 0 for name, _ in columns}
@@ -79,13 +84,14 @@ def main() -> None:
             print(f"[beta {beta}] " + ", ".join(f"{n} {row['energy_ratio'][n]:.4f} ({crossings[n]})"
                                                 for n, _ in columns), flush=True)
     finally:
-        forces.LAYER_SLIDE_DAMPING = shipped_beta
-    command, prov, head = page_head("The layer pairs' tangential preconditioner share on the MakeHuman suits")
+        setattr(module, name, shipped_beta)
+    where = "the solver's preconditioner" if args.part == "solver" else "the step the network reads"
+    command, prov, head = page_head(f"The layer pairs' tangential share in {where}, on the MakeHuman suits")
     load = os.getloadavg()
     names = ["GNN only"] + [f"T = {t}" for t in args.steps]
     lines = [*head,
              f"Checkpoint `{args.checkpoint}`; {len(instances)} suits of `{args.eval}` with its references; "
-             f"β shipped: {shipped_beta}; one torch thread; load average at the end "
+             f"β set: `{module.__name__}.{name}` (shipped {shipped_beta}); one torch thread; load average at the end "
              f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
              "Per β: the set's mean E_total over the references' mean, and in brackets the piece crossings "
              "summed over the suits (intersecting face pairs of different pieces).", "",
@@ -94,7 +100,8 @@ def main() -> None:
         cells = [f"{row['energy_ratio'][n]:.4f} ({row['crossings'][n]})" for n, _ in columns]
         lines.append(f"| {row['beta']:g} | " + " | ".join(cells) + " |")
     write_report(args.out, lines, {"command": command, "provenance": prov, "checkpoint": args.checkpoint,
-                                   "eval": args.eval, "shipped_beta": shipped_beta, "steps": args.steps,
+                                   "eval": args.eval, "part": args.part, "shipped_beta": shipped_beta,
+                                   "steps": args.steps,
                                    "load_average": list(load), "suits": [inst.garment for inst in instances],
                                    "rows": rows})
 

@@ -284,3 +284,26 @@ def test_the_measured_energy_completes_the_layer_pairs_where_the_pieces_are():
     assert len(pairs) >= n * n
     assert layer_term(layers) == pytest.approx(len(pairs) * 0.5 * 1000.0 * 3.5e-3 ** 2, rel=1e-9)
     assert layer_term(replace(layers, piece=None)) == 0.0
+
+
+def test_a_caller_sets_the_layer_pairs_tangential_share(sheet):
+    """`links(cloth, slide=β)`: a layer pair's block k (n nᵀ + β (I − n nᵀ)); β = 0 is the layer
+    energy's own block k n nᵀ of an active pair, and the default is `LAYER_SLIDE_DAMPING`."""
+    from physdrape.physics.forces import LAYER_SLIDE_DAMPING, extra_blocks, links
+
+    x = deformed(sheet, seed=5)
+    layers = make_layers(sheet, x, 5, count=6, active=True)
+    cloth = replace(Cloth.build(sheet), layers=layers)
+    free = links(cloth, slide=0.0)
+    torch.testing.assert_close(free.blocks, layer_pair_blocks(x, layers))
+    n = layers.normal
+    across = torch.eye(3, dtype=n.dtype) - n[:, :, None] * n[:, None, :]
+    for beta in (None, 0.3):
+        tied = links(cloth, slide=beta)
+        expected = LAYER_SLIDE_DAMPING if beta is None else beta
+        torch.testing.assert_close(tied.blocks - free.blocks, expected * layers.stiffness[:, None, None] * across)
+    # the vertex blocks of the preconditioner's local part take the same share
+    difference = extra_blocks(cloth, slide=0.3) - extra_blocks(cloth, slide=0.0)
+    ends = torch.zeros(cloth.num_verts, 3, 3, dtype=n.dtype).index_add_(
+        0, layers.pairs.reshape(-1), (0.3 * layers.stiffness[:, None, None] * across).repeat_interleave(2, dim=0))
+    torch.testing.assert_close(difference, ends)

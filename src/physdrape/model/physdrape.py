@@ -30,6 +30,17 @@ from physdrape.physics.cloth import Cloth
 from physdrape.physics.contact import query_samples_near
 from physdrape.physics.layers import layer_shortfall, push_outer_out
 
+#: The layer pairs' tangential share β in the preconditioner of the solver's step that the network
+#: reads (`ModelConfig.step_inputs`; the solver's own is `physics.forces.LAYER_SLIDE_DAMPING`): 0,
+#: the pairs acting along their normals only, as the layer energy's Hessian does. The solver's β
+#: slows the pieces' relative sliding over many steps, past which the template's pairs no longer
+#: hold them apart; the network sees each piece alone, its move is pushed back out where it drives
+#: one piece into the one under it, and its input should say where each piece is pulled. With the
+#: solver's β the step holds a suit's upper piece over the trousers (male_casualsuit02's: 0.2 mm of
+#: coarse move down, 5 mm without the pairs' tangential share), and the network moves it as little
+#: (`results/layer_slide_damping_inputs.md`). A garment of one piece has no layer pairs.
+INPUT_LAYER_SLIDE = 0.0
+
 
 @dataclass(frozen=True)
 class DrapeInput:
@@ -180,7 +191,8 @@ class PhysDrape(nn.Module):
         nodes = node_features(x, batch.garments, batch.cloth, query.signed_distance[:x.shape[0]].to(x.dtype))
         nodes = self._with_body_normals(nodes, query)
         parts = self.solver.step_parts(x.detach(), batch.cloth, bodies=batch.bodies, body_index=batch.body_index,
-                                       query=query, newton_iterations=self.config.step_newton_iterations)
+                                       query=query, newton_iterations=self.config.step_newton_iterations,
+                                       layer_slide=INPUT_LAYER_SLIDE)
         return torch.cat([nodes, *(part.to(nodes.dtype) for part in parts)], dim=-1), query
 
     def _with_body_normals(self, nodes: Tensor, query: SurfaceQuery) -> Tensor:
@@ -200,7 +212,8 @@ class PhysDrape(nn.Module):
             with torch.no_grad():
                 moved = at + self.config.displacement_scale * first[:, :3].to(at.dtype)
                 local, coarse = self.solver.step_parts(moved, batch.cloth, bodies=batch.bodies,
-                                                       body_index=batch.body_index, query=query)
+                                                       body_index=batch.body_index, query=query,
+                                                       layer_slide=INPUT_LAYER_SLIDE)
                 parts = torch.cat([local, coarse], dim=-1).to(first.dtype)
                 return self.node_normalizer.normalize_columns(parts, slice(-STEP_FEATURES, None))
         return read

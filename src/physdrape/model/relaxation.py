@@ -39,7 +39,7 @@ class Relaxation:
     """
 
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float,
-                 min_move: float = 0.0, reach: float | None = None) -> None:
+                 min_move: float = 0.0, reach: float | None = None, layer_slide: float | None = None) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.min_move = min_move
         self.reach = band if reach is None else reach
@@ -51,7 +51,8 @@ class Relaxation:
         self._follower_holds = False  # whether the follower holds the current planes
         self.bound: DistanceBound | None = None  # the samples' distances at the last full query
         self._bound_bodies: BodySurface | None = None  # the bodies that query asked
-        extra = extra_blocks(cloth)  # independent of x: formed once per solve, in the local terms' float64
+        # independent of x: formed once per solve, in the local terms' float64
+        extra = extra_blocks(cloth, slide=layer_slide)
         self._extra = None if extra is None else extra.to(torch.float64)
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
 

@@ -275,7 +275,7 @@ class StretchingSolver(nn.Module):
     @torch.no_grad()
     def step_parts(self, x: Tensor, cloth: Cloth, *, bodies: BodySurface | None = None,
                    body_index: Tensor | None = None, query: SurfaceQuery | None = None,
-                   newton_iterations: int = 0) -> tuple[Tensor, ...]:
+                   newton_iterations: int = 0, layer_slide: float | None = None) -> tuple[Tensor, ...]:
         """The two parts of a first two-level step's direction C F at x (ΣV, 3) [m], F = −∇Φ
         without f̂ (body contact on planes queried at x; bodies / body_index as in `forward`):
         the block-Jacobi move K⁻¹F and the coarse correction's move P (Pᵀ K P)⁻¹ Pᵀ F, each
@@ -285,8 +285,9 @@ class StretchingSolver(nn.Module):
         or `query_samples_near` with a reach ≥ the contact band and ε: the same parts).
         newton_iterations: k > 0 adds a third part, the truncated Newton move z ≈ K⁻¹F of k
         conjugate-gradient iterations preconditioned by C (as the solver's first steps make it),
-        clipped the same way."""
-        force, inverse, coarse = self._first_step(x, cloth, bodies, body_index, query)
+        clipped the same way. layer_slide: the layer pairs' tangential share β in the step's
+        preconditioner (`physics.forces.links`; None: the solver's own)."""
+        force, inverse, coarse = self._first_step(x, cloth, bodies, body_index, query, layer_slide)
         parts = (self._clip((inverse @ force.unsqueeze(-1)).squeeze(-1)), self._clip(coarse.solve(force)))
         if not newton_iterations:
             return parts
@@ -296,21 +297,24 @@ class StretchingSolver(nn.Module):
         return parts + (self._clip(newton),)
 
     def _first_step(self, x: Tensor, cloth: Cloth, bodies: BodySurface | None, body_index: Tensor | None,
-                    query: SurfaceQuery | None = None) -> tuple[Tensor, Tensor, CoarseSpace]:
+                    query: SurfaceQuery | None = None,
+                    layer_slide: float | None = None) -> tuple[Tensor, Tensor, CoarseSpace]:
         """F at x, the inverse stiffness blocks and the coarse space factored at x."""
         if self.kind is not SolverKind.TWO_LEVEL:
             raise ValueError(f"the preconditioner belongs to the two_level solver; this solver is {self.kind.value}")
-        problem = self._relaxation(cloth, None, self.contact_band)
+        problem = self._relaxation(cloth, None, self.contact_band, layer_slide=layer_slide)
         if bodies is not None:
             problem.requery(x, bodies, body_index, query=query)
-        coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
+        coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing,
+                             layer_slide=layer_slide)
         force, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout)
         coarse.factor(x, contact, pairs)
         return force, inverse, coarse
 
-    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float) -> Relaxation:
+    def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float, *,
+                    layer_slide: float | None = None) -> Relaxation:
         return Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=band,
-                          min_move=self.follow_min_move, reach=max(band, self.contact_band))
+                          min_move=self.follow_min_move, reach=max(band, self.contact_band), layer_slide=layer_slide)
 
     @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,

@@ -332,16 +332,18 @@ class CoarseSpace:
         levels: patch seeds are the nodes of `topology.coarse_graphs` level `levels` (2: patches
             of 6–15 vertices).
         smoothing: neighbour-averaging passes of the patch indicators.
+        layer_slide: the layer pairs' tangential share β in K (`physics.forces.links`; None: the
+            solver's `LAYER_SLIDE_DAMPING`).
     """
 
-    def __init__(self, cloth: Cloth, *, levels: int = 2, smoothing: int = 2) -> None:
+    def __init__(self, cloth: Cloth, *, levels: int = 2, smoothing: int = 2, layer_slide: float | None = None) -> None:
         if levels < 1 or smoothing < 0:
             raise ValueError(f"need levels ≥ 1 and smoothing ≥ 0, got levels={levels}, smoothing={smoothing}")
         self.cloth = cloth
         faces = cloth.faces.cpu().numpy()
         vert_counts = tuple(torch.bincount(cloth.vert_garment, minlength=cloth.num_garments).tolist())
         face_counts = tuple(torch.bincount(cloth.face_garment, minlength=cloth.num_garments).tolist())
-        self._links = links(cloth)
+        self._links = links(cloth, slide=layer_slide)
         linked = np.zeros((0, 2), np.int64) if self._links is None else self._links.pairs.cpu().numpy()
         key = (topology.digest(faces), faces.shape[0], topology.digest(linked), vert_counts, face_counts, levels,
                smoothing, str(cloth.device))

@@ -91,15 +91,17 @@ class Links:
         blocks: H (L, 3, 3) [N/m], independent of x, with each pair's Hessian ≤ [[H, −H], [−H, H]]:
             k I for a stitch (≥ its exact block, `physics.stitches`), k (n nᵀ + β (I − n nᵀ)) for
             a layer pair (≥ its exact block k n nᵀ where the pair is active, `physics.layers`;
-            β = `LAYER_SLIDE_DAMPING`).
+            β = `LAYER_SLIDE_DAMPING` unless the caller gives its own).
     """
 
     pairs: Tensor
     blocks: Tensor
 
 
-def links(cloth: Cloth) -> Links | None:
-    """The cloth's `Links` in its dtype, or None when it has neither stitches nor a layer order."""
+def links(cloth: Cloth, *, slide: float | None = None) -> Links | None:
+    """The cloth's `Links` in its dtype, or None when it has neither stitches nor a layer order;
+    slide: the layer pairs' tangential share β (None: `LAYER_SLIDE_DAMPING`)."""
+    beta = LAYER_SLIDE_DAMPING if slide is None else float(slide)
     pairs, blocks = [], []
     if cloth.stitches is not None:
         k = cloth.stitches.stiffness.to(cloth.dtype)
@@ -110,21 +112,21 @@ def links(cloth: Cloth) -> Links | None:
         normal = n[:, :, None] * n[:, None, :]
         eye = torch.eye(3, dtype=cloth.dtype, device=k.device)
         pairs.append(cloth.layers.pairs)
-        blocks.append(k[:, None, None] * (normal + LAYER_SLIDE_DAMPING * (eye - normal)))
+        blocks.append(k[:, None, None] * (normal + beta * (eye - normal)))
     if not pairs:
         return None
     return Links(torch.cat(pairs), torch.cat(blocks))
 
 
-def extra_blocks(cloth: Cloth) -> Tensor | None:
+def extra_blocks(cloth: Cloth, *, slide: float | None = None) -> Tensor | None:
     """The per-vertex 3×3 blocks (V, 3, 3) [N/m] of the grip and the links, independent of x, for
     preconditioners: the grip's exact Hessian blocks, and H (`links`) at both ends of each link,
     the diagonal blocks of the links' PSD majorant [[H, −H], [−H, H]] (whose off-diagonal blocks
-    the coarse space adds, `physics.coarse_space`); None when the cloth has none."""
+    the coarse space adds, `physics.coarse_space`); None when the cloth has none. slide: as `links`."""
     out = None
     if cloth.grip is not None:
         out = grip_blocks(cloth.grip, cloth.num_verts, dtype=cloth.dtype)
-    tied = links(cloth)
+    tied = links(cloth, slide=slide)
     if tied is not None:
         blocks = torch.zeros(cloth.num_verts, 3, 3, dtype=cloth.dtype, device=tied.blocks.device).index_add_(
             0, tied.pairs.reshape(-1), tied.blocks.repeat_interleave(2, dim=0))
