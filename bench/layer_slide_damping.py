@@ -61,13 +61,14 @@ def main() -> None:
         faces = np.asarray(template.faces, np.int64)
         meshes.append((faces, garment_parts(template.verts, faces).piece))
     reference = float(np.mean([r["energy_total"] for r in references]))
-    module, name = (forces, "LAYER_SLIDE_DAMPING") if args.part == "solver" else (physdrape_model, "INPUT_LAYER_SLIDE")
-    shipped_beta = getattr(module, name)
+    module, attribute = ((forces, "LAYER_SLIDE_DAMPING") if args.part == "solver"
+                         else (physdrape_model, "INPUT_LAYER_SLIDE"))
+    shipped_beta = getattr(module, attribute)
     rows = []
     columns = [("gnn_only", None)] + [(f"t{t}", t) for t in args.steps]
     try:
         for beta in args.betas:
-            setattr(module, name, beta)
+            setattr(module, attribute, beta)
             row = {"beta": beta, "energy_ratio": {}, "crossings": {}, "per_suit": []}
             energies = {name: [] for name, _ in columns}
             crossings = {name: 0 for name, _ in columns}
@@ -84,15 +85,15 @@ def main() -> None:
             print(f"[beta {beta}] " + ", ".join(f"{n} {row['energy_ratio'][n]:.4f} ({crossings[n]})"
                                                 for n, _ in columns), flush=True)
     finally:
-        setattr(module, name, shipped_beta)
+        setattr(module, attribute, shipped_beta)
     where = "the solver's preconditioner" if args.part == "solver" else "the step the network reads"
     command, prov, head = page_head(f"The layer pairs' tangential share in {where}, on the MakeHuman suits")
     load = os.getloadavg()
     names = ["GNN only"] + [f"T = {t}" for t in args.steps]
     lines = [*head,
              f"Checkpoint `{args.checkpoint}`; {len(instances)} suits of `{args.eval}` with its references; "
-             f"β set: `{module.__name__}.{name}` (shipped {shipped_beta}); one torch thread; load average at the end "
-             f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
+             f"β set: `{module.__name__}.{attribute}` (shipped {shipped_beta}); one torch thread; load average at "
+             f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
              "Per β: the set's mean E_total over the references' mean, and in brackets the piece crossings "
              "summed over the suits (intersecting face pairs of different pieces).", "",
              "| β | " + " | ".join(names) + " |", "|---:|" + "---:|" * len(names)]
