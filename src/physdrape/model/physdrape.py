@@ -36,9 +36,9 @@ from physdrape.physics.layers import layer_shortfall, push_outer_out
 #: slows the pieces' relative sliding over many steps, past which the template's pairs no longer
 #: hold them apart; the network sees each piece alone, its move is pushed back out where it drives
 #: one piece into the one under it, and its input should say where each piece is pulled. With the
-#: solver's β the step holds a suit's upper piece over the trousers (male_casualsuit02's: 0.2 mm of
-#: coarse move down, 5 mm without the pairs' tangential share), and the network moves it as little
-#: (`results/layer_slide_damping_inputs.md`). A garment of one piece has no layer pairs.
+#: solver's β the step's coarse moves are smaller on every piece of a layered suit, and the
+#: network, which extrapolates that step, moves the pieces less (`results/layer_slide_damping_inputs.md`).
+#: A garment of one piece has no layer pairs.
 INPUT_LAYER_SLIDE = 0.0
 
 
