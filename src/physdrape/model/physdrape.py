@@ -150,7 +150,8 @@ class PhysDrape(nn.Module):
     def graph_inputs(self, batch: DrapeInput, x: Tensor | None = None) -> tuple[Tensor, Tensor, GraphLevels]:
         """Raw (un-normalised) node and edge features at x (default X_init), in the network's
         dtype, and the graph they live on (the mesh edges, plus `config.levels` coarse levels);
-        with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x
+        with `config.body_normal_inputs`, the body's normal under each vertex follows the node
+        features; with `config.step_inputs`, the nodes' last columns are the solver's first step parts at x
         (and its truncated Newton move, with `config.step_newton_iterations`)."""
         return self._graph_inputs(batch, x)[:3]
 

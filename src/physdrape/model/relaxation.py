@@ -35,7 +35,8 @@ class Relaxation:
     the garment still moves far, a narrow band would let its steps run into the body (then
     `short_of_margin` stops them, and the stopped vertices hold their neighbours back). A local
     requery finds again the planes of the samples within `band` of theirs that moved more than
-    `min_move` [m] since their planes were found.
+    `min_move` [m] since their planes were found. layer_slide: the layer pairs' tangential share β
+    in the preconditioner's blocks (`physics.forces.extra_blocks`; None: the solver's own).
     """
 
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float,
