@@ -36,6 +36,7 @@ from physdrape.garments import layering
 from physdrape.garments.closures import panel_overlaps
 from physdrape.garments.pieces import GarmentParts, garment_parts, waistband_band
 from physdrape.geometry.garment import Garment, GarmentBatch
+from physdrape.geometry.intersections import piece_crossings
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
@@ -232,16 +233,19 @@ class DrapePipeline:
             template.verts, template.faces, name=template.name, dtype=self.dtype).to(device=self.device))
 
     def x_init(self, template: Template, state: BodyState | PosedBodies, index: int = 0,
-               rest: np.ndarray | None = None) -> Tensor:
+               rest: np.ndarray | None = None, limits: dict | None = None) -> Tensor:
         """X_init [m] (V, 3) of `template` on body `index` of `state`, in the state's dtype, on the
         pipeline's device; with `rest` [m] (V, 3), that rest shape skinned instead of the
-        template's plus ΔX_shape."""
+        template's plus ΔX_shape; with `limits`, fields of `LIMIT_FIELDS` other than the
+        pipeline's for this X_init."""
         posed = state if isinstance(state, PosedBodies) else PosedBodies(state)
+        transfer = self._transfer_here(template)
+        if limits:
+            transfer = replace(transfer, **limits)
         with torch.no_grad():
             body = select(posed.state_on(self.device), index)
             rest_t = None if rest is None else torch.as_tensor(rest, dtype=body.rest_verts.dtype, device=self.device)
-            return self._transfer_here(template).apply(body, rest_verts=rest_t,
-                                                       surface=posed.single(index, self.dtype, self.device))[0]
+            return transfer.apply(body, rest_verts=rest_t, surface=posed.single(index, self.dtype, self.device))[0]
 
     def fitted_rest(self, template: Template, state: BodyState | PosedBodies, index: int = 0) -> np.ndarray:
         """The skinning transfer's shape part X_temp + ΔX_shape [m] (V, 3) float64 on body `index`
@@ -276,7 +280,7 @@ class DrapePipeline:
             # skinning moves overlapping pieces apart or through each other where the pose bends
             # them differently: X_init starts with its pieces in their layer order
             with torch.no_grad():
-                x_init = push_outer_out(x_init, layers)
+                x_init, layers = self._in_layer_order(jobs, posed, batch, x_init, layers, bodies)
             cloth = replace(cloth, layers=layers)
         grip = self._grip(jobs, batch, x_init, bodies)
         if grip is not None:
@@ -285,6 +289,52 @@ class DrapePipeline:
         if stitches is not None:
             cloth = replace(cloth, stitches=stitches)
         return DrapeInput(batch, cloth, x_init, bodies, body_of_job[batch.vert_garment])
+
+    def _in_layer_order(self, jobs: Sequence[Job], posed: PosedBodies, batch: GarmentBatch, x_init: Tensor,
+                        layers: LayerOrder, bodies: BodySurface) -> tuple[Tensor, LayerOrder]:
+        """X_init with each layered job's outer pieces pushed out over their inner ones
+        (`physics.layers.push_outer_out`), and the layer order built on it.
+
+        X_init's compression bound (`SkinningTransfer.min_stretch`) pushes compressed edges apart
+        after the skinning; where a pose bends overlapping pieces (a raised arm over a jacket's
+        side), that can carry one piece through another where the layer pairs, pushed out
+        afterwards, do not hold them. So a skinned job whose pushed X_init has piece crossings
+        (`geometry.intersections.piece_crossings`) is skinned again without the bound and takes
+        that start where it crosses fewer face pairs; every other job keeps its X_init."""
+        pushed = push_outer_out(x_init, layers)
+        crossing = {k: n for k in self._unbounded_candidates(jobs)
+                    if (n := self._piece_crossings(jobs[k], batch, pushed, k)) > 0}
+        if not crossing:
+            return pushed, layers
+        other = x_init.clone()
+        for k in crossing:
+            rows = slice(int(batch.vert_offsets[k]), int(batch.vert_offsets[k + 1]))
+            other[rows] = self.x_init(jobs[k].template, posed, jobs[k].body, jobs[k].rest,
+                                      limits={"min_stretch": None}).to(x_init.dtype)
+        other_layers = self._layers(jobs, batch, other, bodies)
+        other_pushed = push_outer_out(other, other_layers)
+        worse = [k for k, n in crossing.items() if self._piece_crossings(jobs[k], batch, other_pushed, k) >= n]
+        if len(worse) == len(crossing):
+            return pushed, layers
+        if worse:  # the jobs whose start did not improve keep theirs; the layer order follows the starts
+            for k in worse:
+                rows = slice(int(batch.vert_offsets[k]), int(batch.vert_offsets[k + 1]))
+                other[rows] = x_init[rows]
+            other_layers = self._layers(jobs, batch, other, bodies)
+            other_pushed = push_outer_out(other, other_layers)
+        return other_pushed, other_layers
+
+    def _unbounded_candidates(self, jobs: Sequence[Job]) -> list[int]:
+        """The jobs `_in_layer_order` may skin again without X_init's compression bound: layered,
+        skinned here (no start of their own), under a transfer that bounds compression."""
+        return [k for k, job in enumerate(jobs)
+                if job.layers and job.x_init is None and self.transfer(job.template).min_stretch is not None]
+
+    def _piece_crossings(self, job: Job, batch: GarmentBatch, x: Tensor, k: int) -> int:
+        """Face pairs of different pieces of job `k` that intersect at its rows of `x`."""
+        rows = x[int(batch.vert_offsets[k]):int(batch.vert_offsets[k + 1])]
+        return piece_crossings(rows.detach().to("cpu", torch.float64).numpy(), job.template.faces,
+                               self._parts(job.template).piece)
 
     def _x_inits(self, jobs: Sequence[Job], posed: PosedBodies) -> dict[int, Tensor]:
         """X_init of every job that brings no start of its own, by job index.

@@ -93,3 +93,41 @@ def test_mhclo_template_pieces_do_not_cross(draper):
     assert len(self_intersecting_faces(raw.verts, raw.faces)) > 0  # else this test proves nothing
     t = draper.garment(str(crossed))
     assert len(self_intersecting_faces(t.verts, t.faces)) == 0
+
+
+@needs_suit
+def test_a_start_whose_pieces_cross_is_skinned_again_without_the_compression_bound(draper, monkeypatch):
+    """X_init's compression bound carries a jacket's side through the trousers where a pose bends
+    them (male_casualsuit02, a raised arm): that job's start is skinned without the bound, the
+    other jobs keep theirs, and the layer order is built on the start the job takes."""
+    from physdrape.geometry.intersections import piece_crossings
+    from physdrape.pipeline import POSE_DTYPE, DrapePipeline, PosedBodies
+
+    path = SUIT.parents[1] / "male_casualsuit02" / "male_casualsuit02.mhclo"
+    suit, tee = draper.garment(str(path)), draper.garment("default")
+    piece = garment_parts(suit.verts, suit.faces).piece
+    body, material = draper.body("anny"), draper.material(None)
+
+    def state(pose: str) -> PosedBodies:
+        return PosedBodies(body(draper.shape({"weight": 0.5}).to(POSE_DTYPE),
+                                draper.poses(pose)[0].pose.to(POSE_DTYPE)))
+
+    bent, relaxed = state("random:2"), state("relaxed")
+    jobs = [Job(tee, 0, material, layers=True), Job(suit, 0, material, layers=True)]
+    pipeline, unbounded = DrapePipeline(body), DrapePipeline(body, x_init_limits={"min_stretch": None})
+    got = pipeline.build(jobs, bent)
+    rows = slice(int(got.garments.vert_offsets[1]), None)
+    assert piece_crossings(got.x_init[rows].numpy(), suit.faces, piece) == 0
+    # the suit takes the start skinned without the bound, its layer order built on it
+    want = unbounded.build(jobs, bent)
+    assert torch.equal(got.x_init[rows], want.x_init[rows])
+    assert torch.equal(got.cloth.layers.normal, want.cloth.layers.normal)
+    # the tee keeps its bounded start
+    assert torch.equal(got.x_init[:rows.start], pipeline.build(jobs[:1], bent).x_init)
+    # where the pieces do not cross, the bound stays: the start a pipeline that never skins again gives
+    kept = pipeline.build(jobs, relaxed).x_init
+    monkeypatch.setattr(DrapePipeline, "_unbounded_candidates", lambda self, jobs: [])
+    plain = DrapePipeline(body)
+    crossed = plain.build(jobs, bent).x_init[rows].numpy()
+    assert piece_crossings(crossed, suit.faces, piece) > 0  # else this test proves nothing
+    assert torch.equal(kept, plain.build(jobs, relaxed).x_init)
