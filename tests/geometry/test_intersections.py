@@ -70,6 +70,32 @@ def test_piece_crossings_count_only_pairs_of_two_pieces():
     assert piece_crossings(apart, faces) == 0
 
 
+def test_piece_crossings_are_the_intersecting_pairs_between_pieces():
+    """Three copies of a T-shirt, one scaled and one turned through the first, as three pieces: the
+    count is that of the reference, every intersecting pair filtered to those of two pieces, and
+    pairs within a piece (a copy folded through itself) are not counted."""
+    from physdrape.api.specs import garment_template
+
+    tee = garment_template("default")
+    v, f = tee.verts, np.asarray(tee.faces, np.int64)
+    turn = np.array([[np.cos(0.3), 0.0, np.sin(0.3)], [0.0, 1.0, 0.0], [-np.sin(0.3), 0.0, np.cos(0.3)]])
+    centre = v.mean(0)
+    verts = np.concatenate([v, (v - centre) * 0.97 + centre, (v - centre) @ turn.T + centre])
+    faces = np.concatenate([f, f + len(v), f + 2 * len(v)])
+    piece = np.repeat(np.arange(3), len(v))
+    pairs = self_intersecting_pairs(verts, faces)
+    owner = piece[faces[:, 0]]
+    between = owner[pairs[:, 0]] != owner[pairs[:, 1]]
+    assert between.sum() > 100 and len({(a, b) for a, b in zip(owner[pairs[:, 0]], owner[pairs[:, 1]])}) >= 3
+    assert piece_crossings(verts, faces, piece) == between.sum()
+    folded = verts.copy()
+    folded[:len(v), 1] = centre[1] - np.abs(v[:, 1] - centre[1])  # the first copy folded through itself
+    pairs = self_intersecting_pairs(folded, faces)
+    within = owner[pairs[:, 0]] == owner[pairs[:, 1]]
+    assert within.any()
+    assert piece_crossings(folded, faces, piece) == (~within).sum()
+
+
 def test_body_distance_sign_and_normal():
     v, f = _cube()
     d, closest, normal = BodyDistance(v, f)(np.array([[0.0, 0.0, 0.15], [0.0, 0.0, 0.05]]))

@@ -11,8 +11,7 @@ float32: exact to ~1e-6 m):
 - `ray_hit_distances`: how far rays travel before they hit a mesh (free space in front of a body).
 """
 
-from __future__ import annotations
-
+# No `from __future__ import annotations` here: Warp reads its functions' annotations as objects.
 import numpy as np
 
 from physdrape.warp_runtime import defined_once
@@ -44,6 +43,27 @@ def _warp():
         else:
             t_out[tid] = max_t
 
+    @wp.func
+    def faces_cross(a0: wp.vec3, a1: wp.vec3, a2: wp.vec3, b0: wp.vec3, b1: wp.vec3, b2: wp.vec3) -> int:
+        # Relative to a0 and in units of the pair's longest edge: wp.intersect_tri_tri snaps plane
+        # distances (scaled by twice the triangle's area) below an absolute 1e-6 to zero, which in
+        # metres calls centimetre triangles millimetres apart touching.
+        size = wp.max(wp.max(wp.max(wp.length(a1 - a0), wp.length(a2 - a1)), wp.length(a0 - a2)),
+                      wp.max(wp.max(wp.length(b1 - b0), wp.length(b2 - b1)), wp.length(b0 - b2)))
+        unit = 1.0 / wp.max(size, 1e-12)
+        zero = wp.vec3(0.0, 0.0, 0.0)
+        return wp.intersect_tri_tri(zero, (a1 - a0) * unit, (a2 - a0) * unit, (b0 - a0) * unit,
+                                    (b1 - a0) * unit, (b2 - a0) * unit)
+
+    @wp.func
+    def shared_corners(faces: wp.array(dtype=wp.int32, ndim=2), i: int, j: int) -> int:
+        shared = int(0)
+        for r in range(3):
+            for s in range(3):
+                if faces[i, r] == faces[j, s]:
+                    shared = shared + 1
+        return shared
+
     @wp.kernel(enable_backward=False)
     def self_pairs_kernel(
         mesh: wp.uint64,
@@ -56,37 +76,40 @@ def _warp():
         a0 = points[faces[i, 0]]
         a1 = points[faces[i, 1]]
         a2 = points[faces[i, 2]]
-        lo = wp.min(wp.min(a0, a1), a2)
-        hi = wp.max(wp.max(a0, a1), a2)
-        query = wp.mesh_query_aabb(mesh, lo, hi)
+        query = wp.mesh_query_aabb(mesh, wp.min(wp.min(a0, a1), a2), wp.max(wp.max(a0, a1), a2))
         j = int(0)
         while wp.mesh_query_aabb_next(query, j):
             if j > i:
-                shared = int(0)
-                for r in range(3):
-                    for s in range(3):
-                        if faces[i, r] == faces[j, s]:
-                            shared = shared + 1
-                if shared == 0:
-                    # Relative to a0 and in units of the pair's longest edge: wp.intersect_tri_tri
-                    # snaps plane distances (scaled by twice the triangle's area) below an absolute
-                    # 1e-6 to zero, which in metres calls centimetre triangles millimetres apart
-                    # touching.
-                    b0 = points[faces[j, 0]]
-                    b1 = points[faces[j, 1]]
-                    b2 = points[faces[j, 2]]
-                    size = wp.max(wp.max(wp.max(wp.length(a1 - a0), wp.length(a2 - a1)), wp.length(a0 - a2)),
-                                  wp.max(wp.max(wp.length(b1 - b0), wp.length(b2 - b1)), wp.length(b0 - b2)))
-                    unit = 1.0 / wp.max(size, 1e-12)
-                    zero = wp.vec3(0.0, 0.0, 0.0)
-                    if wp.intersect_tri_tri(zero, (a1 - a0) * unit, (a2 - a0) * unit, (b0 - a0) * unit,
-                                            (b1 - a0) * unit, (b2 - a0) * unit) != 0:
+                if shared_corners(faces, i, j) == 0:
+                    if faces_cross(a0, a1, a2, points[faces[j, 0]], points[faces[j, 1]], points[faces[j, 2]]) != 0:
                         k = wp.atomic_add(count, 0, 1)
                         if k < pairs.shape[0]:
                             pairs[k, 0] = i
                             pairs[k, 1] = j
 
-    return wp, ray_kernel, self_pairs_kernel
+    @wp.kernel(enable_backward=False)
+    def cross_count_kernel(
+        mesh: wp.uint64,
+        points: wp.array(dtype=wp.vec3),
+        faces: wp.array(dtype=wp.int32, ndim=2),
+        queried: wp.array(dtype=wp.int32),
+        others: wp.array(dtype=wp.int32),
+        count: wp.array(dtype=wp.int32),
+    ):
+        # face queried[tid] against the faces of the mesh (its m-th face is faces[others[m]])
+        i = queried[wp.tid()]
+        a0 = points[faces[i, 0]]
+        a1 = points[faces[i, 1]]
+        a2 = points[faces[i, 2]]
+        query = wp.mesh_query_aabb(mesh, wp.min(wp.min(a0, a1), a2), wp.max(wp.max(a0, a1), a2))
+        m = int(0)
+        while wp.mesh_query_aabb_next(query, m):
+            j = others[m]
+            if shared_corners(faces, i, j) == 0:
+                if faces_cross(a0, a1, a2, points[faces[j, 0]], points[faces[j, 1]], points[faces[j, 2]]) != 0:
+                    wp.atomic_add(count, 0, 1)
+
+    return wp, ray_kernel, self_pairs_kernel, cross_count_kernel
 
 
 def _mesh(wp, verts: np.ndarray, faces: np.ndarray):
@@ -120,7 +143,7 @@ def self_intersecting_pairs(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     if len(faces) == 0:
         return np.zeros((0, 2), np.int64)
-    wp, _, kernel = _warp()
+    wp, _, kernel, _ = _warp()
     mesh = _mesh(wp, verts, faces)
     f2 = wp.array(np.asarray(faces, np.int32), dtype=wp.int32, ndim=2, device=_DEVICE)
     capacity = max(1024, 4 * len(faces))
@@ -138,9 +161,12 @@ def self_intersecting_pairs(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def piece_crossings(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray | None = None) -> int:
-    """How many intersecting face pairs (`self_intersecting_pairs`) have their faces on different
-    pieces: one piece passing through another, which the layer order's pairs, fixed on the
-    template, do not see once the pieces have slid far over each other.
+    """How many intersecting face pairs (as `self_intersecting_pairs` finds them) have their faces
+    on different pieces: one piece passing through another, which the layer order's pairs, fixed
+    on the template, do not see once the pieces have slid far over each other.
+
+    Each piece's faces are tested against a BVH of the faces of the pieces after it, so a face
+    meets only the other pieces' faces near it, not its own piece's neighbours.
 
     Args:
         verts: vertex positions [m], shape (V, 3); faces: triangles, shape (F, 3) int.
@@ -151,9 +177,22 @@ def piece_crossings(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray | No
         from physdrape.geometry.topology import connected_components
 
         piece = connected_components(len(verts), faces)
-    pairs = self_intersecting_pairs(verts, faces)
-    owner = np.asarray(piece)[faces[:, 0]]
-    return int((owner[pairs[:, 0]] != owner[pairs[:, 1]]).sum()) if len(pairs) else 0
+    owner = np.asarray(piece)[faces[:, 0]] if len(faces) else np.zeros(0, np.int64)
+    pieces = np.unique(owner)
+    if len(pieces) < 2:
+        return 0
+    wp, _, _, kernel = _warp()
+    points = wp.array(np.asarray(verts, np.float32), dtype=wp.vec3, device=_DEVICE)
+    f2 = wp.array(faces.astype(np.int32), dtype=wp.int32, ndim=2, device=_DEVICE)
+    count = wp.zeros(1, dtype=wp.int32, device=_DEVICE)
+    for p in pieces[:-1]:
+        queried, others = np.flatnonzero(owner == p), np.flatnonzero(owner > p)
+        mesh = wp.Mesh(points=points, indices=wp.array(faces[others].astype(np.int32).ravel(), dtype=wp.int32,
+                                                        device=_DEVICE))
+        wp.launch(kernel, dim=len(queried), inputs=[mesh.id, points, f2, wp.array(queried.astype(np.int32),
+                  dtype=wp.int32, device=_DEVICE), wp.array(others.astype(np.int32), dtype=wp.int32, device=_DEVICE)],
+                  outputs=[count], device=_DEVICE)
+    return int(count.numpy()[0])
 
 
 def ray_hit_distances(
@@ -172,7 +211,7 @@ def ray_hit_distances(
     origins = np.ascontiguousarray(origins, np.float32).reshape(-1, 3)
     if len(origins) == 0:
         return np.zeros(0)
-    wp, kernel, _ = _warp()
+    wp, kernel, _, _ = _warp()
     mesh = _mesh(wp, verts, faces)
     o = wp.array(origins, dtype=wp.vec3, device=_DEVICE)
     d = wp.array(np.ascontiguousarray(dirs, np.float32).reshape(-1, 3), dtype=wp.vec3, device=_DEVICE)
