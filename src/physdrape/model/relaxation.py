@@ -3,6 +3,8 @@ body planes, its force, its stiffness blocks and the body queries that renew the
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 from torch import Tensor
 
@@ -17,6 +19,7 @@ from physdrape.physics.contact import (
     query_samples,
 )
 from physdrape.physics.forces import extra_blocks, internal_forces, tie_forces
+from physdrape.physics.layers import followed
 from physdrape.physics.potential import GarmentPotential
 
 __all__ = ["Relaxation"]
@@ -103,6 +106,18 @@ class Relaxation:
                 self._faces, self._found_at = follower.face, follower.found_at
         self._potential.hold(self.planes)
         return change
+
+    def follow_layers(self, x: Tensor) -> None:
+        """Complete the layer order's template pairs by those found at x (`physics.layers.followed`)
+        in Φ and the force from now on, as the oracle and the measured energy do; the
+        preconditioner's blocks keep the template's pairs (its structure is built once). No-op
+        for a layer order that does not follow."""
+        layers = self.cloth.layers
+        if layers is None or not layers.follows:
+            return
+        with torch.no_grad():
+            self.cloth = replace(self.cloth, layers=followed(layers, x.detach()))
+        self._potential.hold_layers(self.cloth.layers)
 
     def _bound_on(self, bodies: BodySurface) -> DistanceBound | None:
         """The last full query's bound where it was of these bodies (it decides the side of the

@@ -221,6 +221,7 @@ class StretchingSolver(nn.Module):
                 problem.drop_f_hat()
                 phi = None  # the conjugation goes on: PR+ restarts if needed
             if bodies is not None and t % requery_every == 0:
+                problem.follow_layers(x)  # a multi-piece garment's layer pairs where its pieces are now
                 problem.requery(x, bodies, body_index)
                 phi = None
             elif bodies is not None and follow_planes:

@@ -38,6 +38,7 @@ from physdrape.physics import contact_kernels, element_kernels
 from physdrape.physics.cloth import Cloth
 from physdrape.physics.contact import sample_corners
 from physdrape.physics.forces import tie_energy_terms
+from physdrape.physics.layers import LayerOrder
 from physdrape.physics.majorant import (
     LocalTerms,
     record_compliance,
@@ -139,6 +140,11 @@ class GarmentPotential:
         zeroed: the recorded launches stay valid)."""
         if self._external is not None:
             self._external.zero_()
+
+    def hold_layers(self, layers: LayerOrder) -> None:
+        """Evaluate the layer term with these pairs from now on (those a solver found where the
+        pieces are, `physics.layers.followed`); the recorded launches do not read it."""
+        self.cloth = replace(self.cloth, layers=layers)
 
     def hold(self, planes: tuple[Tensor, Tensor] | None) -> None:
         """Evaluate the contact on these planes from now on: the samples' closest points and unit
