@@ -35,7 +35,10 @@ class StretchingSolver(nn.Module):
 
     - ``kind="explicit"`` (the paper's Eq. 10, the baseline): C = I, F = F_int, η a compliance
       in m/N.
-    - ``kind="two_level"``: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x, with E_c
+    - ``kind="two_level"``: each garment's Φ = E_strain + E_bend + E_grav + E_c − f̂·x (plus the
+      cloth's grip, stitch and layer-order terms; at each full body query a multi-piece garment's
+      layer pairs are completed where its pieces are, `Relaxation.follow_layers`, as the oracle
+      and the measured energy complete them), with E_c
       the body-contact penalty of `physics.contact` (the training loss's and the oracle's term:
       vertices and face centroids) on closest-point planes of the body, queried every
       `requery_every` steps (and with `follow_planes` walked to again at the steps between where
