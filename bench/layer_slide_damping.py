@@ -1,6 +1,6 @@
 """What the layer pairs' tangential preconditioner share β costs and buys on the MakeHuman suits.
 
-Run: .venv/bin/python bench/layer_slide_damping.py [--part solver|inputs] [--betas 0.1 0.03 0.01 0]
+Run: .venv/bin/python bench/layer_slide_damping.py [--part solver|inputs|reach] [--betas 0.1 0.03 0.01 0]
      [--steps 3 15 60] [--makehuman ../shared/data/makehuman_cc0] [--eval results/eval.json]
      [--checkpoint src/physdrape/assets/models/cpu_default] [--out results/layer_slide_damping]
 
@@ -9,7 +9,10 @@ A layer pair's block in the solver's preconditioner is k (n nᵀ + β (I − n n
 and β slows the pieces' relative sliding, which the pairs (found on the template) describe only
 while it is small. `--part solver` sets the solver's β (`physics.forces.LAYER_SLIDE_DAMPING`),
 `--part inputs` the β of the first step that the network reads among its inputs
-(`physdrape.model.physdrape.INPUT_LAYER_SLIDE`), each on its module for the run. Per β: the suits
+(`physdrape.model.physdrape.INPUT_LAYER_SLIDE`), each on its module for the run; `--part reach`
+sets instead how far beyond its gap [m] a layer pair's block still acts in the solver's steps
+(`physics.forces.LAYER_LINK_REACH`; `--betas` then lists reaches, a large one keeps every pair's
+block). Per value: the suits
 (`physdrape eval --makehuman`'s instances and wear) at GNN only and the model at each T, the set's
 mean E_total over the references' mean of the evaluation record `--eval` (as `results/eval.md`
 gives it) and the piece crossings summed over the suits (face pairs of different pieces that
@@ -40,9 +43,11 @@ from physdrape.model import Variant
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", choices=["solver", "inputs"], default="solver",
-                        help="whose β to set: the solver's preconditioner, or that of the step the network reads")
-    parser.add_argument("--betas", type=float, nargs="+", default=[0.1, 0.03, 0.01, 0.0])
+    parser.add_argument("--part", choices=["solver", "inputs", "reach"], default="solver",
+                        help="whose β to set: the solver's preconditioner, or that of the step the network reads; "
+                             "reach: the solver's layer-link reach instead of a β")
+    parser.add_argument("--betas", type=float, nargs="+", default=[0.1, 0.03, 0.01, 0.0],
+                        help="the values of β (with --part reach: of the reach [m])")
     parser.add_argument("--steps", type=int, nargs="+", default=[3, 15, 60])
     parser.add_argument("--makehuman", default="../shared/data/makehuman_cc0")
     parser.add_argument("--eval", default="results/eval.json", help="the evaluation record holding the references")
@@ -61,8 +66,9 @@ def main() -> None:
         faces = np.asarray(template.faces, np.int64)
         meshes.append((faces, garment_parts(template.verts, faces).piece))
     reference = float(np.mean([r["energy_total"] for r in references]))
-    module, attribute = ((forces, "LAYER_SLIDE_DAMPING") if args.part == "solver"
-                         else (physdrape_model, "INPUT_LAYER_SLIDE"))
+    module, attribute = {"solver": (forces, "LAYER_SLIDE_DAMPING"), "inputs": (physdrape_model, "INPUT_LAYER_SLIDE"),
+                         "reach": (forces, "LAYER_LINK_REACH")}[args.part]
+    symbol = "reach [m]" if args.part == "reach" else "β"
     shipped_beta = getattr(module, attribute)
     rows = []
     columns = [("gnn_only", None)] + [(f"t{t}", t) for t in args.steps]
@@ -86,17 +92,19 @@ def main() -> None:
                                                 for n, _ in columns), flush=True)
     finally:
         setattr(module, attribute, shipped_beta)
-    where = "the solver's preconditioner" if args.part == "solver" else "the step the network reads"
-    command, prov, head = page_head(f"The layer pairs' tangential share in {where}, on the MakeHuman suits")
+    title = {"solver": "The layer pairs' tangential share in the solver's preconditioner",
+             "inputs": "The layer pairs' tangential share in the step the network reads",
+             "reach": "How far beyond its gap a layer pair's preconditioner block acts"}[args.part]
+    command, prov, head = page_head(f"{title}, on the MakeHuman suits")
     load = os.getloadavg()
     names = ["GNN only"] + [f"T = {t}" for t in args.steps]
     lines = [*head,
              f"Checkpoint `{args.checkpoint}`; {len(instances)} suits of `{args.eval}` with its references; "
-             f"β set: `{module.__name__}.{attribute}` (shipped {shipped_beta}); one torch thread; load average at "
-             f"the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
-             "Per β: the set's mean E_total over the references' mean, and in brackets the piece crossings "
+             f"{symbol} set: `{module.__name__}.{attribute}` (shipped {shipped_beta}); one torch thread; load "
+             f"average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.", "",
+             f"Per {symbol}: the set's mean E_total over the references' mean, and in brackets the piece crossings "
              "summed over the suits (intersecting face pairs of different pieces).", "",
-             "| β | " + " | ".join(names) + " |", "|---:|" + "---:|" * len(names)]
+             f"| {symbol} | " + " | ".join(names) + " |", "|---:|" + "---:|" * len(names)]
     for row in rows:
         cells = [f"{row['energy_ratio'][n]:.4f} ({row['crossings'][n]})" for n, _ in columns]
         lines.append(f"| {row['beta']:g} | " + " | ".join(cells) + " |")

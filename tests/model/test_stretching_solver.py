@@ -523,3 +523,46 @@ def test_a_vertex_that_moved_gets_the_band_block_within_the_band_plus_its_move()
     assert within.any() and (~within).any()
     expected = 6.0 * k_c * margin * within[:, None, None] * normal[:, :, None] * normal[:, None, :]
     assert torch.allclose(second[reach] - second[None], expected, rtol=1e-12, atol=1e-12)
+
+
+def test_the_solver_steps_keep_the_layer_pairs_within_reach_and_the_input_step_every_pair(monkeypatch):
+    """Two tubes, the outer 2 cm outside the inner one, paired vertex by vertex: the pairs lie
+    farther than their gap plus `LAYER_LINK_REACH` apart, so the solver's coarse factorisations
+    get weight 0 for each (the coarse stiffness with it stays factorisable), with the outer tube
+    shrunk onto the inner one 1; the step the network reads keeps every pair (no weights)."""
+    from dataclasses import replace
+
+    from physdrape.geometry.garment import Garment
+    from physdrape.physics.coarse_space import CoarseSpace
+    from physdrape.physics.layers import LayerOrder
+
+    inner, outer = tube(4, 12, 0.14, dtype=torch.float64), tube(4, 12, 0.16, dtype=torch.float64)
+    garment = Garment.from_mesh(torch.cat([inner.rest, outer.rest]),
+                                torch.cat([inner.faces, outer.faces + inner.num_verts]), name="two_layers",
+                                dtype=torch.float64)
+    batch = make_input([garment], [0.12], dtype=torch.float64)
+    n = inner.num_verts
+    pairs = torch.stack([torch.arange(n) + n, torch.arange(n)], dim=1)
+    normal = torch.nn.functional.normalize(batch.x_init[:n] * torch.tensor([1.0, 0.0, 1.0], dtype=torch.float64),
+                                           dim=1)
+    cloth = replace(batch.cloth, layers=LayerOrder.build(pairs, normal))
+    seen = []
+    factor = CoarseSpace.factor
+
+    def spy(self, x, vertex_blocks=None, pair_blocks=None, link_weight=None):
+        seen.append(link_weight)
+        return factor(self, x, vertex_blocks, pair_blocks, link_weight=link_weight)
+
+    monkeypatch.setattr(CoarseSpace, "factor", spy)
+    solver = _solver(eta=1.0).eval()
+    x = batch.x_init
+    solver(x, cloth, f_hat=None, steps=2, bodies=batch.bodies, body_index=batch.body_index)
+    assert seen and all(w is not None and not bool(w.any()) for w in seen)
+    seen.clear()
+    close = x.clone()
+    close[n:] = x[:n] + 0.004 * normal  # the outer tube at its gap over the inner one
+    solver(close, cloth, f_hat=None, steps=1, bodies=batch.bodies, body_index=batch.body_index)
+    assert len(seen) == 1 and bool(seen[0].all())
+    seen.clear()
+    solver.step_parts(x, cloth, bodies=batch.bodies, body_index=batch.body_index)
+    assert seen == [None]

@@ -328,3 +328,29 @@ def test_a_caller_sets_the_layer_pairs_tangential_share(sheet):
     ends = torch.zeros(cloth.num_verts, 3, 3, dtype=n.dtype).index_add_(
         0, layers.pairs.reshape(-1), (0.3 * layers.stiffness[:, None, None] * across).repeat_interleave(2, dim=0))
     torch.testing.assert_close(difference, ends)
+
+
+def test_a_layer_pairs_preconditioner_block_acts_within_its_reach(sheet):
+    """`layer_link_weights`: every stitch, and the layer pairs whose outer vertex lies less than
+    gap + `LAYER_LINK_REACH` outside the inner one, weigh 1, the pairs farther apart 0 (their
+    energy is zero there); `links` and `extra_blocks` scale each link's block by its weight."""
+    from test_stitches import make_stitches
+
+    from physdrape.physics.forces import LAYER_LINK_REACH, extra_blocks, layer_link_weights, links
+
+    x = deformed(sheet, seed=5)
+    touching, apart = make_layers(sheet, x, 5, count=6), make_layers(sheet, x, 6, count=6, active=False)
+    layers = replace(touching, pairs=torch.cat([touching.pairs, apart.pairs]),
+                     normal=torch.cat([touching.normal, apart.normal]), gap=torch.cat([touching.gap, apart.gap]),
+                     stiffness=torch.cat([touching.stiffness, apart.stiffness]))
+    stitches = make_stitches(sheet, x, 6, count=4)
+    cloth = replace(Cloth.build(sheet), stitches=stitches, layers=layers)
+    weight = layer_link_weights(cloth, x)
+    assert LAYER_LINK_REACH < 0.01  # `make_layers` puts the inactive pairs 1 cm beyond their gap
+    assert weight.tolist() == [1.0] * 4 + [1.0] * 6 + [0.0] * 6
+    assert layer_link_weights(cloth, x, reach=0.02).tolist() == [1.0] * 16
+    assert layer_link_weights(replace(cloth, layers=None), x) is None
+    torch.testing.assert_close(links(cloth, weight=weight).blocks, links(cloth).blocks * weight[:, None, None])
+    kept = replace(cloth, layers=replace(layers, pairs=layers.pairs[:6], normal=layers.normal[:6], gap=layers.gap[:6],
+                                         stiffness=layers.stiffness[:6]))
+    torch.testing.assert_close(extra_blocks(cloth, weight=weight), extra_blocks(kept))

@@ -18,7 +18,7 @@ from physdrape.physics.contact import (
     plane_contact_forces,
     query_samples,
 )
-from physdrape.physics.forces import extra_blocks, internal_forces, tie_forces
+from physdrape.physics.forces import extra_blocks, internal_forces, layer_link_weights, tie_forces
 from physdrape.physics.layers import followed
 from physdrape.physics.potential import GarmentPotential
 
@@ -40,10 +40,14 @@ class Relaxation:
     requery finds again the planes of the samples within `band` of theirs that moved more than
     `min_move` [m] since their planes were found. layer_slide: the layer pairs' tangential share β
     in the preconditioner's blocks (`physics.forces.extra_blocks`; None: the solver's own).
+    active_links: each step keeps only the blocks of the layer pairs within
+    `physics.forces.LAYER_LINK_REACH` of acting (`layer_link_weights`, in `link_weight` for the
+    coarse space); else every link's block at every step.
     """
 
     def __init__(self, cloth: Cloth, f_hat: Tensor | None, *, margin: float, stiffness: float, band: float,
-                 min_move: float = 0.0, reach: float | None = None, layer_slide: float | None = None) -> None:
+                 min_move: float = 0.0, reach: float | None = None, layer_slide: float | None = None,
+                 active_links: bool = False) -> None:
         self.cloth, self.f_hat, self.margin, self.stiffness, self.band = cloth, f_hat, margin, stiffness, band
         self.min_move = min_move
         self.reach = band if reach is None else reach
@@ -58,6 +62,10 @@ class Relaxation:
         # independent of x: formed once per solve, in the local terms' float64
         extra = extra_blocks(cloth, slide=layer_slide)
         self._extra = None if extra is None else extra.to(torch.float64)
+        # the cloth the links were formed on (the template's layer pairs, whatever `follow_layers` adds)
+        self._linked, self._layer_slide = cloth, layer_slide
+        self._active_links = active_links and cloth.layers is not None
+        self.link_weight: Tensor | None = None  # the links' weights at the last `step_terms`
         self._potential = GarmentPotential(cloth, external=f_hat, stiffness=stiffness, margin=margin, band=band)
 
     def drop_f_hat(self) -> None:
@@ -194,6 +202,9 @@ class Relaxation:
           next call); else None.
         """
         bands = self._vertex_bands(x.detach().to(torch.float64))
+        if self._active_links:  # in place: the recorded launches read this buffer
+            self.link_weight = layer_link_weights(self._linked, x.detach())
+            self._extra.copy_(extra_blocks(self._linked, slide=self._layer_slide, weight=self.link_weight))
         terms = self._potential.local_terms(x, extra=self._extra, vertex_band=bands,
                                             rel=max(1e-6, 100.0 * torch.finfo(x.dtype).eps),
                                             tiny=float(torch.finfo(x.dtype).tiny), pairs=pairs)

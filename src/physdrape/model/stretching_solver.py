@@ -210,7 +210,8 @@ class StretchingSolver(nn.Module):
     def _two_level(self, x: Tensor, cloth: Cloth, f_hat: Tensor | None, steps: int, trace: list | None,
                    bodies: BodySurface | None, body_index: Tensor | None, bounds: list | None) -> Tensor:
         eta, gamma = self.eta.to(x.dtype), self.gamma.to(x.dtype)
-        problem = self._relaxation(cloth, f_hat, self.contact_band if self.training else self.eval_contact_band)
+        problem = self._relaxation(cloth, f_hat, self.contact_band if self.training else self.eval_contact_band,
+                                   active_links=True)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         owner = cloth.vert_garment
         per_garment = partial(_garment_dot, cloth)
@@ -233,7 +234,7 @@ class StretchingSolver(nn.Module):
             refactor = t % self.refactor_every == 0 or t < self.refactor_first
             force, contact, inverse, pairs = problem.step_terms(x, pairs=coarse.pair_layout if refactor else None)
             if refactor:
-                coarse.factor(x, contact, pairs)
+                coarse.factor(x, contact, pairs, link_weight=problem.link_weight)
             precondition = partial(_precondition, inverse, coarse)
             iterations = self.inner_iterations if self.training else self.eval_inner_iterations
             if t < self.inner_steps and iterations > 1:
@@ -316,9 +317,10 @@ class StretchingSolver(nn.Module):
         return force, inverse, coarse
 
     def _relaxation(self, cloth: Cloth, f_hat: Tensor | None, band: float, *,
-                    layer_slide: float | None = None) -> Relaxation:
+                    layer_slide: float | None = None, active_links: bool = False) -> Relaxation:
         return Relaxation(cloth, f_hat, margin=self.margin, stiffness=self.contact_stiffness, band=band,
-                          min_move=self.follow_min_move, reach=max(band, self.contact_band), layer_slide=layer_slide)
+                          min_move=self.follow_min_move, reach=max(band, self.contact_band), layer_slide=layer_slide,
+                          active_links=active_links)
 
     @torch.no_grad()
     def _line_search(self, potential, x0: Tensor, phi0: Tensor, move: Tensor, gain: Tensor,

@@ -368,14 +368,16 @@ class CoarseSpace:
         int32) and how many pairs there are: what `physics.majorant.pair_blocks` forms K's blocks in."""
         return self._s.pair_of_corner, self._s.num_pairs
 
-    def factor(self, x: Tensor, vertex_blocks: Tensor | None = None, pair_blocks: Tensor | None = None) -> None:
+    def factor(self, x: Tensor, vertex_blocks: Tensor | None = None, pair_blocks: Tensor | None = None,
+               link_weight: Tensor | None = None) -> None:
         """Form and factorise Pᵀ K P at positions x (V, 3); vertex_blocks (V, 3, 3): the diagonal
         blocks added to the strain majorant's (the solver's contact blocks and
         `physics.forces.extra_blocks`), or None. The cloth's links add their coupling −H between
         the two vertices of each link; their diagonal blocks H are part of `extra_blocks`, which
         vertex_blocks must then include for K to be PSD. pair_blocks: the strain majorant's pair
         blocks at x in `pair_layout` (a solver forms them with its step's local terms), or None
-        (formed here)."""
+        (formed here). link_weight: each link's factor (L,) (`physics.forces.layer_link_weights`;
+        the diagonal blocks in vertex_blocks must carry the same), or None: all 1."""
         s = self._s
         with torch.no_grad():
             if pair_blocks is None:
@@ -385,6 +387,8 @@ class CoarseSpace:
                 blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
             if self._links is not None:
                 coupling = -self._links.blocks.to(blocks.dtype)
+                if link_weight is not None:
+                    coupling = coupling * link_weight.to(blocks.dtype)[:, None, None]
                 blocks.index_add_(0, s.pair_of_link[:, 0], coupling).index_add_(0, s.pair_of_link[:, 1], coupling)
             self.blocks = blocks
             buffer = blocks.new_zeros(s.buffer_size)

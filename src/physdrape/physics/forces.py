@@ -82,6 +82,16 @@ def internal_energy(x: Tensor, cloth: Cloth) -> Tensor:
 LAYER_SLIDE_DAMPING = 0.1
 
 
+#: How far beyond its gap [m] a layer pair's preconditioner block still acts. The layer energy is
+#: zero for a pair whose outer vertex is more than its gap outside the inner one, but a block held
+#: on every pair ties the two pieces together in the preconditioner wherever they overlap on the
+#: template, and slows a piece that has to settle apart from the one under it (a jacket sliding
+#: down over trousers). Beyond the reach the pair's block and coupling are dropped
+#: (`layer_link_weights`): on the MakeHuman suits 5 mm keeps the pieces uncrossed at T = 60,
+#: 2 mm does not (`results/layer_link_reach.md`).
+LAYER_LINK_REACH = 5e-3
+
+
 @dataclass(frozen=True)
 class Links:
     """The vertex pairs that the stitches and the layer order tie, and each pair's coupling.
@@ -98,9 +108,25 @@ class Links:
     blocks: Tensor
 
 
-def links(cloth: Cloth, *, slide: float | None = None) -> Links | None:
+def layer_link_weights(cloth: Cloth, x: Tensor, *, reach: float | None = None) -> Tensor | None:
+    """Which of the cloth's links act at x (V, 3) [m], (L,) in the cloth's dtype, 1 or 0, in
+    `Links.pairs`' order: every stitch, and each layer pair whose outer vertex lies less than its
+    gap plus `reach` [m] (None: `LAYER_LINK_REACH`) outside the inner one along the pair's normal;
+    None when the cloth has no layer order."""
+    if cloth.layers is None:
+        return None
+    layers, reach = cloth.layers, LAYER_LINK_REACH if reach is None else float(reach)
+    apart = ((x[layers.pairs[:, 0]] - x[layers.pairs[:, 1]]) * layers.normal.to(x.dtype)).sum(-1)
+    near = (apart < layers.gap.to(x.dtype) + reach).to(cloth.dtype)
+    if cloth.stitches is None:
+        return near
+    return torch.cat([torch.ones(len(cloth.stitches.pairs), dtype=near.dtype, device=near.device), near])
+
+
+def links(cloth: Cloth, *, slide: float | None = None, weight: Tensor | None = None) -> Links | None:
     """The cloth's `Links` in its dtype, or None when it has neither stitches nor a layer order;
-    slide: the layer pairs' tangential share β (None: `LAYER_SLIDE_DAMPING`)."""
+    slide: the layer pairs' tangential share β (None: `LAYER_SLIDE_DAMPING`); weight: each link's
+    factor (L,) (`layer_link_weights`; None: all 1)."""
     beta = LAYER_SLIDE_DAMPING if slide is None else float(slide)
     pairs, blocks = [], []
     if cloth.stitches is not None:
@@ -115,18 +141,22 @@ def links(cloth: Cloth, *, slide: float | None = None) -> Links | None:
         blocks.append(k[:, None, None] * (normal + beta * (eye - normal)))
     if not pairs:
         return None
-    return Links(torch.cat(pairs), torch.cat(blocks))
+    blocks = torch.cat(blocks)
+    if weight is not None:
+        blocks = blocks * weight.to(blocks.dtype)[:, None, None]
+    return Links(torch.cat(pairs), blocks)
 
 
-def extra_blocks(cloth: Cloth, *, slide: float | None = None) -> Tensor | None:
-    """The per-vertex 3×3 blocks (V, 3, 3) [N/m] of the grip and the links, independent of x, for
-    preconditioners: the grip's exact Hessian blocks, and H (`links`) at both ends of each link,
-    the diagonal blocks of the links' PSD majorant [[H, −H], [−H, H]] (whose off-diagonal blocks
-    the coarse space adds, `physics.coarse_space`); None when the cloth has none. slide: as `links`."""
+def extra_blocks(cloth: Cloth, *, slide: float | None = None, weight: Tensor | None = None) -> Tensor | None:
+    """The per-vertex 3×3 blocks (V, 3, 3) [N/m] of the grip and the links for preconditioners:
+    the grip's exact Hessian blocks, and H (`links`) at both ends of each link, the diagonal
+    blocks of the links' PSD majorant [[H, −H], [−H, H]] (whose off-diagonal blocks the coarse
+    space adds with the same weights, `physics.coarse_space`); None when the cloth has none.
+    slide, weight: as `links`."""
     out = None
     if cloth.grip is not None:
         out = grip_blocks(cloth.grip, cloth.num_verts, dtype=cloth.dtype)
-    tied = links(cloth, slide=slide)
+    tied = links(cloth, slide=slide, weight=weight)
     if tied is not None:
         blocks = torch.zeros(cloth.num_verts, 3, 3, dtype=cloth.dtype, device=tied.blocks.device).index_add_(
             0, tied.pairs.reshape(-1), tied.blocks.repeat_interleave(2, dim=0))
