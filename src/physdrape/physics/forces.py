@@ -101,7 +101,9 @@ class Links:
         blocks: H (L, 3, 3) [N/m], independent of x, with each pair's Hessian ≤ [[H, −H], [−H, H]]:
             k I for a stitch (≥ its exact block, `physics.stitches`), k (n nᵀ + β (I − n nᵀ)) for
             a layer pair (≥ its exact block k n nᵀ where the pair is active, `physics.layers`;
-            β = `LAYER_SLIDE_DAMPING` unless the caller gives its own).
+            β = `LAYER_SLIDE_DAMPING` unless the caller gives its own), each times its weight
+            where the caller gives weights (`layer_link_weights`: the solver's steps keep the
+            layer pairs within reach of acting).
     """
 
     pairs: Tensor
