@@ -59,7 +59,7 @@ class Relaxation:
         self._follower_holds = False  # whether the follower holds the current planes
         self.bound: DistanceBound | None = None  # the samples' distances at the last full query
         self._bound_bodies: BodySurface | None = None  # the bodies that query asked
-        # independent of x: formed once per solve, in the local terms' float64
+        # formed once per solve, in the local terms' float64 (with `active_links`, again in place at every step)
         extra = extra_blocks(cloth, slide=layer_slide)
         self._extra = None if extra is None else extra.to(torch.float64)
         # the cloth the links were formed on (the template's layer pairs, whatever `follow_layers` adds)
