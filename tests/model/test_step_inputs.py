@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from drape_cases import make_input, tube
+from drape_cases import layered_tubes, make_input, tube
 
 from physdrape.model import ModelConfig, PhysDrape, Variant
 from physdrape.model.features import NEWTON_FEATURES, NODE_FEATURES, STEP_FEATURES
@@ -146,22 +146,10 @@ def test_the_step_inputs_read_the_layer_pairs_along_their_normals_only():
     """A multi-piece garment's step inputs come from a preconditioner whose layer pairs act along
     their normals only (`INPUT_LAYER_SLIDE`, 0), not with the solver's tangential share, which
     holds the outer piece to the inner one's sliding."""
-    from dataclasses import replace
-
-    from physdrape.geometry.garment import Garment
     from physdrape.model.physdrape import INPUT_LAYER_SLIDE
-    from physdrape.physics.layers import LayerOrder
 
-    inner, outer = tube(4, 12, 0.14, dtype=torch.float64), tube(4, 12, 0.16, dtype=torch.float64)
-    garment = Garment.from_mesh(torch.cat([inner.rest, outer.rest]),
-                                torch.cat([inner.faces, outer.faces + inner.num_verts]), name="two_layers",
-                                dtype=torch.float64)
-    batch = make_input([garment], [0.15], dtype=torch.float64)
-    n = inner.num_verts
-    pairs = torch.stack([torch.arange(n) + n, torch.arange(n)], dim=1)
-    normal = torch.nn.functional.normalize(batch.x_init[:n] * torch.tensor([1.0, 0.0, 1.0], dtype=torch.float64), dim=1)
-    layers = LayerOrder.build(pairs, normal, separation=torch.full((n,), 0.02, dtype=torch.float64))
-    batch = replace(batch, cloth=replace(batch.cloth, layers=layers))
+    batch = layered_tubes(0.15, separation=0.02)
+    n = batch.garments.num_verts // 2
     model = PhysDrape(MODEL).double()
     nodes, _, _ = model.graph_inputs(batch)
     step = model.solver.step_parts(batch.x_init, batch.cloth, bodies=batch.bodies, body_index=batch.body_index,

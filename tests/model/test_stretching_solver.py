@@ -4,7 +4,7 @@ import itertools
 
 import pytest
 import torch
-from drape_cases import make_input, tube
+from drape_cases import layered_tubes, make_input, tube
 
 from physdrape.model import relaxation
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
@@ -530,22 +530,11 @@ def test_the_solver_steps_keep_the_layer_pairs_within_reach_and_the_input_step_e
     farther than their gap plus `LAYER_LINK_REACH` apart, so the solver's coarse factorisations
     get weight 0 for each (the coarse stiffness with it stays factorisable), with the outer tube
     shrunk onto the inner one 1; the step the network reads keeps every pair (no weights)."""
-    from dataclasses import replace
-
-    from physdrape.geometry.garment import Garment
     from physdrape.physics.coarse_space import CoarseSpace
-    from physdrape.physics.layers import LayerOrder
 
-    inner, outer = tube(4, 12, 0.14, dtype=torch.float64), tube(4, 12, 0.16, dtype=torch.float64)
-    garment = Garment.from_mesh(torch.cat([inner.rest, outer.rest]),
-                                torch.cat([inner.faces, outer.faces + inner.num_verts]), name="two_layers",
-                                dtype=torch.float64)
-    batch = make_input([garment], [0.12], dtype=torch.float64)
-    n = inner.num_verts
-    pairs = torch.stack([torch.arange(n) + n, torch.arange(n)], dim=1)
-    normal = torch.nn.functional.normalize(batch.x_init[:n] * torch.tensor([1.0, 0.0, 1.0], dtype=torch.float64),
-                                           dim=1)
-    cloth = replace(batch.cloth, layers=LayerOrder.build(pairs, normal))
+    batch = layered_tubes(0.12)
+    cloth, n = batch.cloth, batch.garments.num_verts // 2
+    normal = cloth.layers.normal
     seen = []
     factor = CoarseSpace.factor
 
