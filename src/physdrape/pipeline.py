@@ -168,6 +168,11 @@ class Job:
     layers: bool = False
 
 
+def _rows(batch: GarmentBatch, k: int) -> slice:
+    """The rows of garment `k` in the batch's packed vertices."""
+    return slice(int(batch.vert_offsets[k]), int(batch.vert_offsets[k + 1]))
+
+
 def select(state: BodyState, index: int) -> BodyState:
     """Body `index` of a posed batch as a batch of one (what a skinning transfer takes)."""
     sl = slice(index, index + 1)
@@ -308,8 +313,7 @@ class DrapePipeline:
             return pushed, layers
         other = x_init.clone()
         for k in crossing:
-            rows = slice(int(batch.vert_offsets[k]), int(batch.vert_offsets[k + 1]))
-            other[rows] = self.x_init(jobs[k].template, posed, jobs[k].body, jobs[k].rest,
+            other[_rows(batch, k)] = self.x_init(jobs[k].template, posed, jobs[k].body, jobs[k].rest,
                                       limits={"min_stretch": None}).to(x_init.dtype)
         other_layers = self._layers(jobs, batch, other, bodies)
         other_pushed = push_outer_out(other, other_layers)
@@ -318,8 +322,7 @@ class DrapePipeline:
             return pushed, layers
         if worse:  # the jobs whose start did not improve keep theirs; the layer order follows the starts
             for k in worse:
-                rows = slice(int(batch.vert_offsets[k]), int(batch.vert_offsets[k + 1]))
-                other[rows] = x_init[rows]
+                other[_rows(batch, k)] = x_init[_rows(batch, k)]
             other_layers = self._layers(jobs, batch, other, bodies)
             other_pushed = push_outer_out(other, other_layers)
         return other_pushed, other_layers
@@ -332,8 +335,7 @@ class DrapePipeline:
 
     def _piece_crossings(self, job: Job, batch: GarmentBatch, x: Tensor, k: int) -> int:
         """Face pairs of different pieces of job `k` that intersect at its rows of `x`."""
-        rows = x[int(batch.vert_offsets[k]):int(batch.vert_offsets[k + 1])]
-        return piece_crossings(rows.detach().to("cpu", torch.float64).numpy(), job.template.faces,
+        return piece_crossings(x[_rows(batch, k)].detach().to("cpu", torch.float64).numpy(), job.template.faces,
                                self._parts(job.template).piece)
 
     def _x_inits(self, jobs: Sequence[Job], posed: PosedBodies) -> dict[int, Tensor]:

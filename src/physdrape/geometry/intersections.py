@@ -183,15 +183,15 @@ def piece_crossings(verts: np.ndarray, faces: np.ndarray, piece: np.ndarray | No
         return 0
     wp, _, _, kernel = _warp()
     points = wp.array(np.asarray(verts, np.float32), dtype=wp.vec3, device=_DEVICE)
-    f2 = wp.array(faces.astype(np.int32), dtype=wp.int32, ndim=2, device=_DEVICE)
+    faces32 = faces.astype(np.int32)
+    f2 = wp.array(faces32, dtype=wp.int32, ndim=2, device=_DEVICE)
     count = wp.zeros(1, dtype=wp.int32, device=_DEVICE)
     for p in pieces[:-1]:
-        queried, others = np.flatnonzero(owner == p), np.flatnonzero(owner > p)
-        mesh = wp.Mesh(points=points, indices=wp.array(faces[others].astype(np.int32).ravel(), dtype=wp.int32,
-                                                        device=_DEVICE))
-        wp.launch(kernel, dim=len(queried), inputs=[mesh.id, points, f2, wp.array(queried.astype(np.int32),
-                  dtype=wp.int32, device=_DEVICE), wp.array(others.astype(np.int32), dtype=wp.int32, device=_DEVICE)],
-                  outputs=[count], device=_DEVICE)
+        queried, others = (np.flatnonzero(pick).astype(np.int32) for pick in (owner == p, owner > p))
+        mesh = wp.Mesh(points=points, indices=wp.array(faces32[others].ravel(), dtype=wp.int32, device=_DEVICE))
+        wp.launch(kernel, dim=len(queried), device=_DEVICE, outputs=[count],
+                  inputs=[mesh.id, points, f2, wp.array(queried, dtype=wp.int32, device=_DEVICE),
+                          wp.array(others, dtype=wp.int32, device=_DEVICE)])
     return int(count.numpy()[0])
 
 
