@@ -217,6 +217,31 @@ def test_follow_pairs_hold_each_vertex_on_its_side_of_the_other_sheet():
     assert set(map(tuple, pairs_flipped.flip(1).tolist())) == set(map(tuple, pairs.tolist()))
 
 
+def test_follow_pairs_pair_the_pieces_of_one_garment_only():
+    """Four sheets stacked 6 mm apart, the lower three the pieces of one garment, the top one a
+    garment of its own: every vertex of each of the three is held against each of the other two
+    (the upper piece outer), and the fourth sheet gets no pair, though it lies 6 mm over the third."""
+    from physdrape.physics.layers import follow_pairs
+
+    n = 6
+    sheets = [_sheet(n, 0.05, [0.0, 0.006 * k, 0.0]) for k in range(4)]
+    verts = torch.cat([v for v, _ in sheets])
+    faces = torch.cat([f + k * n * n for k, (_, f) in enumerate(sheets)])
+    together = torch.zeros(4, 4, dtype=torch.bool)
+    together[:3, :3] = True
+    together[3, 3] = True
+    layers = replace(_sheets_order(verts, faces, n), piece=torch.repeat_interleave(torch.arange(4), n * n),
+                     together=together)
+    pairs, _ = follow_pairs(verts, layers)
+    piece = layers.piece[pairs]
+    assert not bool((piece == 3).any())
+    assert set(map(tuple, piece.tolist())) == {(1, 0), (2, 0), (2, 1)}
+    for upper, lower in ((1, 0), (2, 0), (2, 1)):
+        between = pairs[(piece[:, 0] == upper) & (piece[:, 1] == lower)]
+        assert set(between[:, 0].tolist()) == set(range(upper * n * n, (upper + 1) * n * n))  # each outer vertex
+        assert set(between[:, 1].tolist()) == set(range(lower * n * n, (lower + 1) * n * n))  # each inner one
+
+
 def _slid_sheets_over_a_slab(depth: float = 5e-3):
     """Two 6 × 6 sheets over a slab whose top lies `depth` [m] under the inner one, the outer sheet authored
     beside the inner one (only its nearest columns within the template pairs' reach) and slid over

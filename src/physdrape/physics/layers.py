@@ -188,22 +188,22 @@ def follow_pairs(x: Tensor, layers: LayerOrder) -> tuple[Tensor, Tensor]:
     nearest corner, the face's normal the pair's. Returns ([outer, inner] pairs (P, 2) int64,
     normals (P, 3)). Needs `layers.follows`."""
     piece, x = layers.piece, x.detach()
-    around = _faces_of_vertices(layers.faces, len(x))
-    found, normals = [], []
-    for p, q in torch.triu(layers.together, diagonal=1).nonzero().tolist():
-        vp, vq = (piece == p).nonzero()[:, 0], (piece == q).nonzero()[:, 0]
-        for points, others in ((vp, vq), (vq, vp)):
-            near = torch.full((len(points), FOLLOW_NEIGHBOURS), -1, dtype=torch.int64, device=x.device)
-            a, b = nearest_within(x[points], x[others], k=FOLLOW_NEIGHBOURS, radius=FOLLOW_RADIUS)
-            slot = torch.arange(len(a), device=x.device) - torch.searchsorted(a, a)  # a is sorted
-            near[a, slot] = others[b]
-            has = (near >= 0).any(1)
-            pair, normal = _onto_surface(x, points[has], near[has], layers.faces, around)
-            found.append(pair)
-            normals.append(normal)
-    if not found:
+    partners = layers.together & ~torch.eye(len(layers.together), dtype=torch.bool, device=layers.together.device)
+    points_of, near_of = [], []
+    for q in partners.any(0).nonzero()[:, 0].tolist():  # one search per piece: its partners' vertices against it
+        others = (piece == q).nonzero()[:, 0]
+        points = ((piece >= 0) & partners[piece.clamp_min(0), q]).nonzero()[:, 0]
+        near = torch.full((len(points), FOLLOW_NEIGHBOURS), -1, dtype=torch.int64, device=x.device)
+        a, b = nearest_within(x[points], x[others], k=FOLLOW_NEIGHBOURS, radius=FOLLOW_RADIUS)
+        slot = torch.arange(len(a), device=x.device) - torch.searchsorted(a, a)  # a is sorted
+        near[a, slot] = others[b]
+        has = (near >= 0).any(1)
+        points_of.append(points[has])
+        near_of.append(near[has])
+    points = torch.cat(points_of) if points_of else torch.zeros(0, dtype=torch.int64, device=x.device)
+    if not len(points):
         return torch.zeros(0, 2, dtype=torch.int64, device=x.device), x.new_zeros(0, 3)
-    return torch.cat(found), torch.cat(normals)
+    return _onto_surface(x, points, torch.cat(near_of), layers.faces, _faces_of_vertices(layers.faces, len(x)))
 
 
 def followed(layers: LayerOrder, x: Tensor) -> LayerOrder:
