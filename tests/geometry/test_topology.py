@@ -20,6 +20,18 @@ def test_two_triangles():
     assert edge_index.shape == (2, 10)
 
 
+def test_hinge_faces_hold_the_hinges_corners_in_order():
+    """Each interior hinge's first face holds the half-edge v0 -> v1 and v2, its second v1 -> v0 and
+    v3, on a tube (every face consistently wound)."""
+    _, faces = open_cylinder(4, 8)
+    hinges, two = topology.interior_hinges(faces), topology.interior_hinge_faces(faces)
+    assert two.shape == (len(hinges), 2) and bool((two[:, 0] != two[:, 1]).all())
+    for (v0, v1, v2, v3), (s, t) in zip(hinges.tolist(), two.tolist()):
+        first, second = faces[s].tolist(), faces[t].tolist()
+        assert set(first) == {v0, v1, v2} and set(second) == {v0, v1, v3}
+        assert first[(first.index(v0) + 1) % 3] == v1 and second[(second.index(v1) + 1) % 3] == v0
+
+
 def test_edges_are_found_once_per_face_content_and_shared_read_only():
     _, faces = open_cylinder(4, 8)
     edges = topology.undirected_edges(faces)

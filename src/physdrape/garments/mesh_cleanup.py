@@ -24,6 +24,7 @@ from physdrape.geometry.topology import (
     boundary_edges,
     boundary_loops,
     drop_unused_vertices,
+    interior_hinge_faces,
     interior_hinges,
     undirected_edges,
 )
@@ -31,12 +32,16 @@ from physdrape.geometry.topology import (
 __all__ = ["collapse_short_edges", "flip_to_delaunay", "remove_flat_ears", "repair_moved_mesh"]
 
 
-def _vertex_faces(faces: np.ndarray, num_verts: int) -> list[list[int]]:
-    out: list[list[int]] = [[] for _ in range(num_verts)]
-    for k, tri in enumerate(faces.tolist()):
-        for v in tri:
-            out[v].append(k)
-    return out
+def _incidence(rows: np.ndarray, items: np.ndarray, num_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """`items` grouped by `rows` (compressed rows): (start (num_rows + 1,), items in row order), so
+    that row r's items are items[start[r]:start[r + 1]]."""
+    order = np.argsort(rows, kind="stable")
+    return np.searchsorted(rows[order], np.arange(num_rows + 1)), items[order]
+
+
+def _row(incidence: tuple[np.ndarray, np.ndarray], r: int) -> set[int]:
+    start, items = incidence
+    return set(items[start[r]:start[r + 1]].tolist())
 
 
 def _normal(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -62,11 +67,9 @@ def collapse_short_edges(verts: np.ndarray, faces: np.ndarray, min_edge: float, 
         on_boundary = np.zeros(len(v), bool)
         on_boundary[be.ravel()] = True
         boundary_set = {(min(a, b), max(a, b)) for a, b in be.tolist()}
-        vf = _vertex_faces(f, len(v))
-        neighbours: list[set[int]] = [set() for _ in range(len(v))]
-        for a, b in e.tolist():
-            neighbours[a].add(b)
-            neighbours[b].add(a)
+        # each vertex's faces and neighbours, read only for the candidates' ends
+        vf = _incidence(f.ravel(), np.repeat(np.arange(len(f)), 3), len(v))
+        neighbours = _incidence(e.T.ravel(), e[:, ::-1].T.ravel(), len(v))
         locked = np.zeros(len(v), bool)
         remap = np.arange(len(v))
         done = 0
@@ -79,12 +82,13 @@ def collapse_short_edges(verts: np.ndarray, faces: np.ndarray, min_edge: float, 
             if on_boundary[b] and not on_boundary[a]:
                 a, b = b, a  # keep the boundary vertex
             target = v[a] if on_boundary[a] != on_boundary[b] else 0.5 * (v[a] + v[b])
-            shared = set(vf[a]) & set(vf[b])
+            faces_a, faces_b = _row(vf, a), _row(vf, b)
+            shared = faces_a & faces_b
             opposite = {x for s in shared for x in f[s].tolist()} - {a, b}
-            if neighbours[a] & neighbours[b] != opposite:
+            if _row(neighbours, a) & _row(neighbours, b) != opposite:
                 continue  # link condition fails: the collapse would change the topology
             ok = True
-            for s in (set(vf[a]) | set(vf[b])) - shared:
+            for s in (faces_a | faces_b) - shared:
                 tri = f[s]
                 before = _normal(*v[tri])
                 moved = v[tri].copy()
@@ -100,7 +104,7 @@ def collapse_short_edges(verts: np.ndarray, faces: np.ndarray, min_edge: float, 
             remap[b] = a
             for x in (a, b):
                 locked[x] = True
-                locked[list(neighbours[x])] = True
+                locked[neighbours[1][neighbours[0][x]:neighbours[0][x + 1]]] = True
             done += 1
         if not done:
             break
@@ -183,17 +187,22 @@ def flip_to_delaunay(verts: np.ndarray, faces: np.ndarray, *, max_dihedral_deg: 
         candidates = np.nonzero((excess > 1e-9) & (coplanar | folded))[0]
         if not len(candidates):
             break
-        edges = {tuple(e) for e in undirected_edges(f).tolist()}
-        face_of = {}
-        for k, tri in enumerate(f.tolist()):
-            for i in range(3):
-                face_of[(tri[i], tri[(i + 1) % 3])] = k
+        faces_of = interior_hinge_faces(f)
+        edges = undirected_edges(f)
+        keys = edges[:, 0] * len(v) + edges[:, 1]  # sorted, as the edges are
+        added: set[tuple[int, int]] = set()  # the edges this sweep's flips made
+
+        def has_edge(i: int, j: int) -> bool:
+            lo, hi = min(i, j), max(i, j)
+            at = int(np.searchsorted(keys, lo * len(v) + hi))
+            return (at < len(keys) and int(keys[at]) == lo * len(v) + hi) or (lo, hi) in added
+
         touched = np.zeros(len(f), bool)
         flipped = 0
         for k in candidates[np.argsort(-excess[candidates], kind="stable")].tolist():
             x, y, p, q = (int(i) for i in h[k])  # face s holds the half-edge x -> y, third corner p
-            s, t = face_of[(x, y)], face_of[(y, x)]
-            if touched[s] or touched[t] or (min(p, q), max(p, q)) in edges:
+            s, t = (int(i) for i in faces_of[k])
+            if touched[s] or touched[t] or has_edge(p, q):
                 continue
             new_s, new_t = np.array([p, x, q]), np.array([p, q, y])
             ref = _normal(*v[f[s]]) + _normal(*v[f[t]])
@@ -201,7 +210,7 @@ def flip_to_delaunay(verts: np.ndarray, faces: np.ndarray, *, max_dihedral_deg: 
                 continue
             f[s], f[t] = new_s, new_t
             touched[[s, t]] = True
-            edges.add((min(p, q), max(p, q)))
+            added.add((min(p, q), max(p, q)))
             flipped += 1
         if not flipped:
             break

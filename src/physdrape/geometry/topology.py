@@ -100,6 +100,14 @@ def interior_hinges(faces: np.ndarray) -> np.ndarray:
     return np.stack([ab[first, 0], ab[first, 1], opposite[first], opposite[second]], axis=1)
 
 
+def interior_hinge_faces(faces: np.ndarray) -> np.ndarray:
+    """The two faces of each of `interior_hinges`' hinges, in its order, shape (H, 2) int64: first
+    the face in which v0→v1 is a half-edge (the one holding v2), then the other (holding v3)."""
+    _, face, _, _, start, count, _ = _edge_groups(faces)
+    first = start[count == 2]
+    return np.stack([face[first], face[first + 1]], axis=1)
+
+
 def edge_neighbour_faces(faces: np.ndarray) -> np.ndarray:
     """For face f and local corner k, the other face across the edge opposite corner k (-1 if none).
 
