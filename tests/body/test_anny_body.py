@@ -7,7 +7,8 @@ from collections import Counter
 import pytest
 import torch
 
-from physdrape.body.anny_body import ANNY_TO_YUP, PHENOTYPE_NAMES, NUM_HM08_VERTS
+from physdrape.body.anny_body import NUM_HM08_VERTS, PHENOTYPE_NAMES
+from physdrape.body.anny_data import ANNY_TO_YUP
 from physdrape.body.model import apply_transforms
 
 pytestmark = pytest.mark.anny

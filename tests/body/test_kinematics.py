@@ -14,6 +14,7 @@ from physdrape.body.model import (
     blend_transforms,
     euler_to_matrix,
     forward_kinematics,
+    matrix_to_axis_angle,
     pose_to_matrices,
     vertex_face_table,
     vertex_normals,
@@ -32,6 +33,24 @@ def test_axis_angle_matches_scipy_and_is_smooth_at_zero():
     R = axis_angle_to_matrix(x)
     (grad,) = torch.autograd.grad(R[0, 1] + R[2, 0], x)
     assert torch.isfinite(grad).all() and grad.abs().max() > 0.5  # d/dθ of the skew part
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 2e-5)])
+def test_matrix_to_axis_angle_matches_scipy_at_every_angle(dtype, tol):
+    """Random rotations, tiny angles and angles at and next to π: scipy's rotation vector (at π,
+    where v and −v are one rotation, the same rotation)."""
+    g = torch.Generator().manual_seed(1)
+    axis = torch.nn.functional.normalize(torch.randn(60, 3, generator=g, dtype=torch.float64), dim=-1)
+    angle = torch.cat([torch.rand(30, generator=g, dtype=torch.float64) * math.pi,
+                       torch.tensor([0.0, 1e-12, 1e-8, 1e-5, 1e-2]).double(),
+                       math.pi - torch.tensor([1e-1, 1e-3, 1e-6]).double(), torch.full((22,), math.pi).double()])
+    R = axis_angle_to_matrix(axis * angle[:, None])
+    ours = matrix_to_axis_angle(R.to(dtype)).double()
+    ref = torch.from_numpy(Rotation.from_matrix(R.numpy()).as_rotvec())
+    away = angle < math.pi - 1e-4
+    assert (ours - ref)[away].abs().max() < tol
+    assert (axis_angle_to_matrix(ours) - R).abs().max() < 10 * tol  # at π too
+    assert ours.norm(dim=-1).max() <= math.pi + tol
 
 
 @pytest.mark.parametrize("order", ["ZYX", "ZXY", "XYZ"])

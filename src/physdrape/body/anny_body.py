@@ -12,20 +12,19 @@ the skin, two eyeballs and the teeth/tongue block); ``makehuman`` = the full hm0
 13,348 vertices, a closed 2-manifold (0 boundary edges).
 
 The first Anny build of a (rig, topology) is slow and is cached by Anny on disk
-(``~/.cache/anny`` or ``$ANNY_CACHE_DIR``); later loads read that cache. This module keeps one
-copy of what it needs per process (`get_anny_body`).
+(``~/.cache/anny`` or ``$ANNY_CACHE_DIR``); what PhysDrape reads from it is cached again, and read
+without importing Anny, by `body.anny_data`. This module keeps one copy of the body per process
+(`get_anny_body`).
 """
 
 from __future__ import annotations
 
 import functools
-import threading
-from dataclasses import dataclass
 
-import numpy as np
 import torch
 from torch import Tensor
 
+from physdrape.body.anny_data import load_anny_data, phenotype_coefficients
 from physdrape.body.model import (
     BodyModel,
     BodyState,
@@ -40,7 +39,6 @@ from physdrape.body.model import (
     vertex_face_table,
     vertex_normals,
 )
-from physdrape.progress import directory_size, slow_phase
 
 PHENOTYPE_NAMES: tuple[str, ...] = ("gender", "age", "muscle", "weight", "height", "proportions")
 """Order of the shape vector (B, 6), values in [0, 1]. gender 0 = male, 1 = female; age uses
@@ -49,110 +47,6 @@ a teenager); muscle, weight, height: min 0, average 0.5, max 1; proportions 0 = 
 1 = uncommon."""
 
 NUM_HM08_VERTS = 19158
-ANNY_TO_YUP = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]], dtype=torch.float64)
-"""p_physdrape = ANNY_TO_YUP @ p_anny (a rotation, det +1)."""
-
-RIGS = ("anny", "cmu_mb")
-
-
-@dataclass(frozen=True)
-class _AnnyData:
-    """Everything a forward pass needs, float64, PhysDrape frame, restricted to `vertex_ids`."""
-
-    template: Tensor  # (V, 3)
-    blend: Tensor  # (K, V*3)
-    heads: Tensor  # (J, 3)
-    heads_blend: Tensor  # (K, J*3)
-    tails: Tensor | None  # (J, 3)
-    tails_blend: Tensor | None  # (K, J*3)
-    mask: Tensor  # stacked phenotype blendshape mask
-    projection: Tensor | None  # (K_orig, K)
-    phenotype_labels: tuple[str, ...]
-    weights: Tensor  # dense skinning weights (V, J)
-    faces: Tensor  # (F, 3) int64, into the V kept vertices
-    vertex_ids: Tensor  # (V,) index of each kept vertex in Anny's mesh
-    hm08_ids: Tensor  # (V,) index of each kept vertex in the hm08 base mesh
-    bone_labels: tuple[str, ...]
-    parents: tuple[int, ...]
-
-
-def _largest_component(faces: np.ndarray, num_verts: int) -> np.ndarray:
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    rows = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])
-    cols = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
-    adj = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_verts, num_verts))
-    _, label = connected_components(adj, directed=False)
-    used = np.unique(faces)
-    best = np.bincount(label[used]).argmax()
-    return np.nonzero(label == best)[0]
-
-
-_LOCK = threading.Lock()
-
-
-@functools.lru_cache(maxsize=None)
-def _load(rig: str, topology: str, surface_only: bool) -> _AnnyData:
-    if rig not in RIGS:
-        raise ValueError(f"unknown Anny rig {rig!r}; expected one of {RIGS}")
-    from physdrape.warp_runtime import warp
-
-    warp()  # Anny uses Warp: start it here, quietly, before Anny does
-    try:
-        import anny
-    except ImportError as e:  # pragma: no cover - anny is a hard dependency
-        raise ImportError("the Anny body needs the `anny` package: pip install anny") from e
-    from anny.paths import get_anny_cache_path
-
-    cache = get_anny_cache_path()
-    with _LOCK, slow_phase(f"building the Anny body model (rig {rig}): once per machine and rig, about a minute; "
-                           f"it is cached in {cache}", done=lambda: f"the cache {cache} holds {directory_size(cache)}"):
-        m = anny.Anny(rig=rig, topology=topology, local_changes="none", facial_actions="none")
-    C = ANNY_TO_YUP
-    dt = torch.float64
-    template = m.template_vertices.detach().to(dt) @ C.T
-    K = m.blendshapes.shape[0]
-    blend = m.blendshapes.detach().to(dt) @ C.T  # (K, V, 3)
-    faces = m.faces.detach().cpu().long()
-    if faces.shape[1] != 3:  # quads (the full makehuman topology): only positions are used
-        faces = torch.zeros(0, 3, dtype=torch.long)
-    num_verts = template.shape[0]
-    if surface_only:
-        keep = torch.from_numpy(_largest_component(faces.numpy(), num_verts))
-        remap = torch.full((num_verts,), -1, dtype=torch.long)
-        remap[keep] = torch.arange(len(keep))
-        fk = remap[faces]
-        faces = fk[(fk >= 0).all(1)]
-    else:
-        keep = torch.arange(num_verts)
-    J = len(m.bone_labels)
-    dense = torch.zeros(num_verts, J, dtype=dt)
-    dense.scatter_add_(1, m.vertex_bone_indices.long(), m.vertex_bone_weights.detach().to(dt))
-    tails = tails_blend = None
-    if getattr(m, "template_bone_tails", None) is not None:
-        tails = m.template_bone_tails.detach().to(dt) @ C.T
-        tails_blend = (m.bone_tails_blendshapes.detach().to(dt) @ C.T).reshape(K, -1)
-    proj = m.phenotype_blendshape_projection
-    return _AnnyData(
-        template=template[keep].contiguous(),
-        blend=blend[:, keep].reshape(K, -1).contiguous(),
-        heads=m.template_bone_heads.detach().to(dt) @ C.T,
-        heads_blend=(m.bone_heads_blendshapes.detach().to(dt) @ C.T).reshape(K, -1),
-        tails=tails,
-        tails_blend=tails_blend,
-        mask=m.stacked_phenotype_blend_shapes_mask.detach().clone(),
-        projection=None if proj is None else proj.detach().to(dt),
-        phenotype_labels=tuple(m.phenotype_labels),
-        weights=dense[keep].contiguous(),
-        faces=faces.contiguous(),
-        vertex_ids=keep,
-        hm08_ids=m.base_mesh_vertex_indices.detach().long()[keep],
-        bone_labels=tuple(m.bone_labels),
-        parents=tuple(int(p) for p in m.bone_parents),
-    )
-
-
 def check_phenotypes(shape: Tensor, *, name: str = "shape") -> None:
     """Raise a clear error unless shape is a finite (B, 6) float tensor with values in [0, 1]."""
     check_batch(shape, name, (len(PHENOTYPE_NAMES),))
@@ -180,7 +74,7 @@ class AnnyBody(BodyModel):
 
     def __init__(self, *, rig: str = "anny") -> None:
         self.rig = rig
-        self._data = _load(rig, "anny", True)
+        self._data = load_anny_data(rig, "anny", True)
         self._levels = joint_levels(self._data.parents)
         self._cast: dict = {}
 
@@ -261,8 +155,6 @@ class AnnyBody(BodyModel):
         key = (dtype, device)
         if key not in self._cast:
             d = self._data
-            from anny.models.phenotype import make_phenotype_anchors
-
             c = {
                 name: getattr(d, name).to(device=device, dtype=dtype)
                 for name in ("template", "blend", "heads", "heads_blend", "weights")
@@ -270,9 +162,6 @@ class AnnyBody(BodyModel):
             if d.tails is not None:
                 c["tails"] = d.tails.to(device=device, dtype=dtype)
                 c["tails_blend"] = d.tails_blend.to(device=device, dtype=dtype)
-            c["projection"] = None if d.projection is None else d.projection.to(device=device, dtype=dtype)
-            c["mask"] = d.mask.to(device=device, dtype=dtype)
-            c["anchors"] = make_phenotype_anchors(dtype, device)
             c["faces"] = d.faces.to(device)
             c["table"] = vertex_face_table(c["faces"], d.template.shape[0])
             self._cast[key] = c
@@ -280,13 +169,7 @@ class AnnyBody(BodyModel):
 
     def blend_coefficients(self, shape: Tensor) -> Tensor:
         """Coefficients of the (compacted) phenotype blendshapes, shape (B, K)."""
-        from anny.models.phenotype import phenotype_blendshape_weights
-
-        c = self._tensors(shape.dtype, shape.device)
-        w = phenotype_blendshape_weights(
-            shape, list(PHENOTYPE_NAMES), c["anchors"], c["mask"], extrapolate=False
-        )
-        return w if c["projection"] is None else w @ c["projection"]
+        return phenotype_coefficients(self._data, shape, PHENOTYPE_NAMES)
 
     def rest_verts(self, shape: Tensor) -> Tensor:
         """Shaped surface in the rest pose [m], shape (B, Vb, 3)."""
@@ -365,23 +248,13 @@ class AnnyBody(BodyModel):
         positions `.mhclo` garment files bind to. The first call may build Anny's ``makehuman``
         topology (slow, once per machine; then cached on disk)."""
         check_phenotypes(shape)
-        d = _load("anny", "makehuman", False)
+        d = load_anny_data("anny", "makehuman", False)
         template = d.template.to(shape)
-        coeff = _coefficients(d, shape)
+        coeff = phenotype_coefficients(d, shape, PHENOTYPE_NAMES)
         verts = template + (coeff @ d.blend.to(shape)).reshape(shape.shape[0], -1, 3)
         out = verts.new_zeros(shape.shape[0], NUM_HM08_VERTS, 3)
         out[:, d.hm08_ids] = verts
         return out
-
-
-def _coefficients(d: _AnnyData, shape: Tensor) -> Tensor:
-    from anny.models.phenotype import make_phenotype_anchors, phenotype_blendshape_weights
-
-    w = phenotype_blendshape_weights(
-        shape, list(PHENOTYPE_NAMES), make_phenotype_anchors(shape.dtype, shape.device),
-        d.mask.to(shape), extrapolate=False,
-    )
-    return w if d.projection is None else w @ d.projection.to(shape)
 
 
 @functools.lru_cache(maxsize=None)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from physdrape.body.model import euler_to_matrix, forward_kinematics, matrix_to_axis_angle
+from physdrape.body.model import axis_angle_to_matrix, euler_to_matrix, forward_kinematics, matrix_to_axis_angle
 
 CMU_MAX_TO_MB: dict[str, str] = {
     "Hips": "Hips",
@@ -220,8 +220,6 @@ def map_joint_names(names: tuple[str, ...], expected: tuple[str, ...]) -> dict[s
 
 def _min_rotation(a: Tensor, b: Tensor) -> Tensor:
     """Smallest rotation taking direction a to direction b, (..., 3) -> (..., 3, 3)."""
-    import roma
-
     a = a / a.norm(dim=-1, keepdim=True)
     b = b / b.norm(dim=-1, keepdim=True)
     axis = torch.linalg.cross(a, b)
@@ -235,7 +233,7 @@ def _min_rotation(a: Tensor, b: Tensor) -> Tensor:
         ortho = torch.where(ortho.norm(dim=-1, keepdim=True) < 1e-6,
                             torch.linalg.cross(a, torch.tensor([0.0, 1.0, 0.0], dtype=a.dtype).expand_as(a)), ortho)
         unit = torch.where(anti, ortho / ortho.norm(dim=-1, keepdim=True), unit)
-    return roma.rotvec_to_rotmat(unit * angle)
+    return axis_angle_to_matrix(unit * angle)
 
 
 @dataclass(frozen=True)

@@ -109,10 +109,33 @@ def axis_angle_to_matrix(rotvec: Tensor) -> Tensor:
 
 
 def matrix_to_axis_angle(R: Tensor) -> Tensor:
-    """Inverse of `axis_angle_to_matrix` (angle in [0, pi]), shape (..., 3, 3) -> (..., 3)."""
-    import roma
+    """Inverse of `axis_angle_to_matrix` (angle in [0, pi]), shape (..., 3, 3) -> (..., 3).
 
-    return roma.rotmat_to_rotvec(R)
+    Through the unit quaternion (w, x, y, z), each found from the largest of 4w², 4x², 4y², 4z²
+    (the traces of R's symmetric combinations; Shepperd's method, accurate at every angle,
+    π included), w ≥ 0; the angle is 2 atan2(|(x, y, z)|, w), its series near zero."""
+    r = [column.unbind(-1) for column in R.unbind(-1)]  # r[j][i] = R[..., i, j]
+    m00, m10, m20 = r[0]
+    m01, m11, m21 = r[1]
+    m02, m12, m22 = r[2]
+    squares = torch.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    largest = squares.argmax(-1, keepdim=True)
+    sq = squares.clamp_min(0.0)
+    w_x_y_z = [  # the quaternion from each of the four, times 4 × that component (normalised below)
+        torch.stack([sq[..., 0], m21 - m12, m02 - m20, m10 - m01], -1),
+        torch.stack([m21 - m12, sq[..., 1], m01 + m10, m02 + m20], -1),
+        torch.stack([m02 - m20, m01 + m10, sq[..., 2], m12 + m21], -1),
+        torch.stack([m10 - m01, m02 + m20, m12 + m21, sq[..., 3]], -1),
+    ]
+    q = torch.gather(torch.stack(w_x_y_z, -2), -2, largest[..., None].expand(*largest.shape, 4)).squeeze(-2)
+    q = q / q.norm(dim=-1, keepdim=True)
+    q = torch.where(q[..., :1] < 0, -q, q)
+    w, v = q[..., 0], q[..., 1:]
+    n = v.norm(dim=-1)
+    small = n < 1e-8
+    n_safe = torch.where(small, torch.ones_like(n), n)
+    scale = torch.where(small, 2.0 / w, 2.0 * torch.atan2(n, w) / n_safe)  # angle / |v|, 2/w + O(|v|²)
+    return v * scale[..., None]
 
 
 def euler_to_matrix(angles: Tensor, order: str) -> Tensor:
