@@ -59,6 +59,21 @@ def test_the_cached_data_is_what_anny_gives(anny_body, tmp_path, monkeypatch):
         anny_data.load_anny_data.cache_clear()
 
 
+def test_an_unwritable_cache_warns_and_drapes_on(anny_body, tmp_path, monkeypatch):
+    """Where the cache cannot be written, the data still come (from Anny), with a warning that says
+    where and how to fix it."""
+    blocked = tmp_path / "not_a_folder"
+    blocked.write_text("a file where the cache folder would go")
+    monkeypatch.setattr(anny_data, "cache_dir", lambda: blocked / "anny_body")
+    anny_data.load_anny_data.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="make that folder writable"):
+            data = anny_data.load_anny_data("anny", "anny", True)
+        assert torch.equal(data.template, anny_body._data.template)
+    finally:
+        anny_data.load_anny_data.cache_clear()
+
+
 def test_an_unknown_rig_is_refused():
     with pytest.raises(ValueError, match="unknown Anny rig"):
         anny_data.load_anny_data("smpl", "anny", True)

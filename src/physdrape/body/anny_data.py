@@ -23,6 +23,7 @@ import functools
 import importlib.metadata
 import json
 import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -89,7 +90,12 @@ def load_anny_data(rig: str, topology: str, surface_only: bool) -> AnnyData:
         data = _read(stem)
         if data is None:
             data = _from_anny(rig, topology, surface_only)
-            _write(stem, data)
+            try:
+                _write(stem, data)
+            except OSError as e:  # a read-only or full disk: drape on, from Anny in every process
+                warnings.warn(f"could not keep the Anny body data in {stem.parent} ({e}); every process will read "
+                              "it from Anny again, about a second more: make that folder writable to avoid it",
+                              stacklevel=2)
     return data
 
 
