@@ -71,9 +71,16 @@ class AnnyData:
     anchors: dict  # per interpolated phenotype: (first anchor, last anchor) of its evenly spaced anchors
 
 
+def _anny_version() -> str:
+    try:
+        return importlib.metadata.version("anny")
+    except importlib.metadata.PackageNotFoundError as e:  # pragma: no cover - anny is a hard dependency
+        raise ImportError("the Anny body needs the `anny` package: pip install anny") from e
+
+
 def cache_dir() -> Path:
     """Where `load_anny_data` keeps its files: ~/.cache/physdrape/anny_body/anny-<installed version>."""
-    return Path.home() / ".cache" / "physdrape" / "anny_body" / f"anny-{importlib.metadata.version('anny')}"
+    return Path.home() / ".cache" / "physdrape" / "anny_body" / f"anny-{_anny_version()}"
 
 
 _LOCK = threading.Lock()
@@ -127,7 +134,7 @@ def _write(stem: Path, data: AnnyData) -> None:
     tensors = {name: getattr(data, name).contiguous() for name in _TENSORS if getattr(data, name) is not None}
     with atomic_path(stem.with_suffix(".safetensors")) as tmp:
         save_file(tensors, str(tmp))
-    meta = {"format": CACHE_FORMAT, "anny": importlib.metadata.version("anny"),
+    meta = {"format": CACHE_FORMAT, "anny": _anny_version(),
             "phenotype_labels": list(data.phenotype_labels), "bone_labels": list(data.bone_labels),
             "parents": list(data.parents), "variations": [list(v) for v in data.variations],
             "anchors": {name: list(ends) for name, ends in data.anchors.items()}}
