@@ -217,6 +217,24 @@ def test_follow_pairs_hold_each_vertex_on_its_side_of_the_other_sheet():
     assert set(map(tuple, pairs_flipped.flip(1).tolist())) == set(map(tuple, pairs.tolist()))
 
 
+def test_follow_pairs_find_faces_again_after_the_faces_change_in_place():
+    """The faces table `follow_pairs` keeps per faces tensor is made again when that tensor is
+    changed in place (its faces reordered): the pairs are those of a fresh copy of the new faces."""
+    from physdrape.physics.layers import follow_pairs
+
+    n = 6
+    inner, faces = _sheet(n, 0.05, [0.0, 0.0, 0.0])
+    outer, _ = _sheet(n, 0.05, [0.01, 0.006, 0.0])
+    verts, faces = torch.cat([inner, outer]), torch.cat([faces, faces + n * n])
+    layers = _sheets_order(verts, faces, n)
+    before = follow_pairs(verts, layers)
+    layers.faces.copy_(layers.faces.flip(0))  # the same faces in the opposite order
+    after = follow_pairs(verts, layers)
+    fresh = follow_pairs(verts, replace(layers, faces=layers.faces.clone()))
+    assert all(torch.equal(a, b) for a, b in zip(after, fresh))
+    assert set(map(tuple, after[0].tolist())) == set(map(tuple, before[0].tolist()))
+
+
 def test_follow_pairs_pair_the_pieces_of_one_garment_only():
     """Four sheets stacked 6 mm apart, the lower three the pieces of one garment, the top one a
     garment of its own: every vertex of each of the three is held against each of the other two

@@ -37,6 +37,7 @@ from torch import Tensor
 
 from physdrape.geometry.closest_point import closest_point_on_indexed_triangles
 from physdrape.geometry.neighbours import nearest_within
+from physdrape.tensor_memo import TensorMemo
 
 __all__ = ["DEFAULT_LAYER_GAP", "DEFAULT_LAYER_STIFFNESS", "FOLLOW_ASIDE", "FOLLOW_NEIGHBOURS", "FOLLOW_RADIUS",
            "MIN_LAYER_GAP", "LayerOrder", "follow_pairs", "followed", "layer_energy", "layer_forces",
@@ -64,6 +65,10 @@ FOLLOW_ASIDE = 0.005
 #: Passes of `push_outer_out`: a piece pushed out may be the inner piece of another pair (a jacket
 #: over a shirt over trousers), which the next pass then pushes.
 PUSH_PASSES = 3
+
+#: Each layer order's faces table (`_faces_of_vertices`), kept per faces tensor: `follow_pairs`
+#: runs at every full body query of a solve and at every search of the oracle, on the same faces.
+_FACE_TABLES = TensorMemo(size=8)
 
 
 @dataclass(frozen=True)
@@ -139,7 +144,8 @@ class LayerOrder:
 
 
 def _faces_of_vertices(faces: Tensor, num_verts: int) -> Tensor:
-    """Each vertex's faces (num_verts, D) int64, −1 where it has fewer than the most (D)."""
+    """Each vertex's faces (num_verts, D) int64, −1 where it has fewer than the most (D) (a vertex
+    of no face: a row of −1)."""
     vertex = faces.reshape(-1)
     face = torch.arange(len(faces), device=faces.device).repeat_interleave(3)
     order = torch.argsort(vertex, stable=True)
@@ -203,7 +209,8 @@ def follow_pairs(x: Tensor, layers: LayerOrder) -> tuple[Tensor, Tensor]:
     points = torch.cat(points_of) if points_of else torch.zeros(0, dtype=torch.int64, device=x.device)
     if not len(points):
         return torch.zeros(0, 2, dtype=torch.int64, device=x.device), x.new_zeros(0, 3)
-    return _onto_surface(x, points, torch.cat(near_of), layers.faces, _faces_of_vertices(layers.faces, len(x)))
+    around = _FACE_TABLES.get(layers.faces, lambda faces: _faces_of_vertices(faces, int(faces.max()) + 1))
+    return _onto_surface(x, points, torch.cat(near_of), layers.faces, around)
 
 
 def followed(layers: LayerOrder, x: Tensor) -> LayerOrder:
