@@ -17,16 +17,16 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import statistics
 import sys
 import tempfile
-import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
 from bench_drape import export_base
 from report import page_head, write_report
+from timing import call_ms, side_by_side, turns
 
 
 def main() -> None:
@@ -55,14 +55,11 @@ def main() -> None:
                    for a in ("verts", "faces"))
         samples = {k: [] for k in load}
         for r in range(args.repeats):
-            for k in (("this", "base") if r % 2 == 0 else ("base", "this")):
-                t = time.perf_counter()
-                load[k](spec)
-                samples[k].append(1e3 * (time.perf_counter() - t))
+            for k in turns(r):
+                samples[k].append(call_ms(partial(load[k], spec)))
         name = Path(spec).parent.name if spec.endswith(".mhclo") else spec
         row = {"garment": name, "verts": len(first["this"].verts), "same_template": same,
-               "ms": {"this": statistics.median(samples["this"]), "base": statistics.median(samples["base"]),
-                      "ratio": statistics.median(a / b for a, b in zip(samples["this"], samples["base"]))}}
+               "ms": side_by_side(samples["this"], samples["base"])}
         rows.append(row)
         print(f"[garment_load] {name}: {row['ms']['this']:.0f} against {row['ms']['base']:.0f} ms, "
               f"same template {same}", flush=True)

@@ -29,6 +29,7 @@ import torch
 from bench_drape import export_base
 from garments_stay_on import BODIES, body_shapes
 from report import page_head, write_report
+from timing import side_by_side, turns
 
 from physdrape.garments.pieces import garment_parts
 from physdrape.geometry.intersections import piece_crossings
@@ -65,7 +66,7 @@ def main() -> None:
             first = {k: drape(k)[0] for k in drapers}  # first use: transfer fit, posed body, kernels
             samples = {k: {"init": [], "drape": []} for k in drapers}
             for r in range(args.repeats):
-                for k in (("this", "base") if r % 2 == 0 else ("base", "this")):
+                for k in turns(r):
                     res, ms = drape(k)
                     samples[k]["init"].append(1e3 * res.timings["init_s"])
                     samples[k]["drape"].append(ms)
@@ -74,9 +75,7 @@ def main() -> None:
                    "crossings_drape": {k: piece_crossings(r.verts, template.faces, piece) for k, r in first.items()},
                    "ms": {}}
             for phase in ("init", "drape"):
-                this, base = samples["this"][phase], samples["base"][phase]
-                row["ms"][phase] = {"this": statistics.median(this), "base": statistics.median(base),
-                                    "ratio": statistics.median(a / b for a, b in zip(this, base))}
+                row["ms"][phase] = side_by_side(samples["this"][phase], samples["base"][phase])
             rows.append(row)
             print(f"[suit_start] {path.stem} {body}: init {row['ms']['init']['this']:.1f} against "
                   f"{row['ms']['init']['base']:.1f} ms, crossings at X_init {row['crossings_x_init']}", flush=True)

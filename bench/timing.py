@@ -1,5 +1,6 @@
-"""The timing helpers every benchmark uses: warm-up calls, then the median of timed repeats; and the
-median of times of which some are only lower bounds (a run that stopped on its budget)."""
+"""The timing helpers every benchmark uses: warm-up calls, then the median of timed repeats; two
+commits timed taking turns and summed up side by side; and the median of times of which some are
+only lower bounds (a run that stopped on its budget)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,18 @@ def median_ms(fn, repeats: int, *, warmup: int = 1) -> float:
     for _ in range(warmup):
         fn()
     return statistics.median(call_ms(fn) for _ in range(repeats))
+
+
+def turns(repeat: int) -> tuple[str, str]:
+    """The order of "this" and "base" at repeat `repeat` when two commits take turns call by call
+    (alternating, so that neither always runs first)."""
+    return ("this", "base") if repeat % 2 == 0 else ("base", "this")
+
+
+def side_by_side(this: list[float], base: list[float]) -> dict:
+    """The medians of two commits' paired times and the median of the per-pair ratios this / base."""
+    return {"this": statistics.median(this), "base": statistics.median(base),
+            "ratio": statistics.median(a / b for a, b in zip(this, base, strict=True))}
 
 
 def median_bound(values: list[float], bounds: list[bool]) -> tuple[float, bool]:
