@@ -15,13 +15,15 @@ from torch import Tensor
 
 from physdrape.api.placement import check_extent, unit_scale
 from physdrape.api.types import DrapeError, Motion
+from physdrape.garments.catalogue import CATEGORIES, generate_valid
 from physdrape.geometry.mesh import MeshError, check_mesh
 from physdrape.physics.material import Material
 from physdrape.physics.presets import MATERIAL_PRESETS, material_preset
 from physdrape.pipeline import POSE_DTYPE, Template
 
-#: Categories of the procedural generator, usable as "category:seed" garment specs.
-GARMENT_CATEGORIES = ("tshirt", "longsleeve", "tanktop", "croptop")
+#: The procedural garments' names (tops, trousers and shorts, outfits: `garments.catalogue`),
+#: usable as "category:seed" garment specs.
+GARMENT_CATEGORIES = CATEGORIES
 _GENERATED = re.compile(rf"^({'|'.join(GARMENT_CATEGORIES)}):(\d+)$")
 _RANDOM_POSE = re.compile(r"^random:(\d+)$")
 #: The pose used when none is given: a natural standing pose with the arms off the torso.
@@ -92,10 +94,8 @@ def _template_from_text(text: str, *, smpl: bool, units: str) -> Template:
 
             return template_from_mesh("tshirt_default", *_mesh(default_garment()))
         if _GENERATED.match(text):
-            from physdrape.garments import generate_valid_garment
-
             category, seed = text.split(":")
-            g, _ = generate_valid_garment(category, int(seed))
+            g, _ = generate_valid(category, int(seed))
             return template_from_mesh(g.name, *_mesh(g))
         path = Path(text).expanduser()
         if not path.is_file():

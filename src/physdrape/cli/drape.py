@@ -339,7 +339,8 @@ def add_parser(sub) -> None:
     g = drape.add_argument_group("garments")
     g.add_argument("--garment", action="append", metavar="FILE|default|CATEGORY:SEED",
                    help="garment on the canonical body: .obj/.ply (metres, y-up) or .mhclo; repeat for a batch")
-    g.add_argument("--category", help="generate a garment: tshirt, longsleeve, tanktop or croptop")
+    g.add_argument("--category", help="generate a garment: a top (tshirt, longsleeve, tanktop, croptop), shorts, "
+                   "capri or trousers, or an outfit (a top over trousers)")
     g.add_argument("--seed", type=int, help="seed of the generated garment (with --category; default 0)")
     g.add_argument("--units", choices=tuple(UNITS), default="m", help="unit of --garment .obj/.ply files "
                    "(default m); they are converted to metres, and so are the outputs")

@@ -3,6 +3,9 @@
 Public API (y-up metres on the canonical Anny body):
     GarmentCategory, GarmentParams, GarmentTemplate, sample_params, generate_garment,
     generate_valid_garment, generate_batch           - procedural tops (generator.py)
+    catalogue.generate_valid                         - every procedural garment by name: the tops,
+                                                       trousers and shorts (trousers.py), outfits
+                                                       of a top over trousers (outfits.py)
     make_split, load_split                           - the 600/30 split (split.py)
     load_template, write_ply, read_ply               - OBJ/PLY templates (io.py)
     default_garment                                  - the bundled T-shirt template
@@ -22,9 +25,9 @@ from physdrape.garments.cloth3d import list_cloth3d_garments, load_cloth3d_garme
 from physdrape.garments.contact_sheet import render_contact_sheet
 from physdrape.garments.generator import (
     COLLISION_MARGIN,
-    GarmentTemplate,
     GarmentCategory,
     GarmentParams,
+    GarmentTemplate,
     generate_batch,
     generate_garment,
     generate_valid_garment,

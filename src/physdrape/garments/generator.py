@@ -124,13 +124,14 @@ class GarmentTemplate:
     Attributes:
         verts: rest positions [m], shape (V, 3) float64, y-up.
         faces: triangles, shape (F, 3) int64, oriented outward.
-        params: the generator parameters (None for loaded garments).
+        params: the generator parameters (`GarmentParams`, `garments.trousers.TrousersParams` or
+            `garments.outfits.OutfitParams`; None for loaded garments).
         name: a label.
     """
 
     verts: np.ndarray
     faces: np.ndarray
-    params: GarmentParams | None = None
+    params: object | None = None
     name: str = "garment"
     meta: dict = field(default_factory=dict)
 
@@ -226,6 +227,7 @@ def generate_garment(
     target_edge: float = 0.015,
     body: CanonicalBody | None = None,
     wrap_iterations: int = 40,
+    clearance_floor=None,
 ) -> GarmentTemplate:
     """Build the template mesh of one procedural garment on the canonical body.
 
@@ -234,6 +236,9 @@ def generate_garment(
         target_edge: edge length of the output mesh [m].
         body: the canonical body (default: Anny, phenotypes 0.5, rest pose).
         wrap_iterations: smoothing/push-out sweeps of the shrink-wrap.
+        clearance_floor: None, or a function of the body points under the garment's vertices
+            [m] (N, 3) giving the least clearance each vertex must keep [m] (N,) (0: none): the
+            room a garment worn underneath takes (`garments.outfits`).
 
     Returns:
         the garment; deterministic for given params and body.
@@ -266,6 +271,8 @@ def generate_garment(
     _, c, n = f.query(v)
     gap = ray_hit_distances(body.verts, body.faces, c + 1e-4 * n, n, max_t=1.0)
     offset = np.maximum(np.minimum(offset, 0.4 * gap), COLLISION_MARGIN + 1e-3)
+    if clearance_floor is not None:
+        offset = np.maximum(offset, clearance_floor(c))
     weight = np.clip(1.0 - arm, 0.0, 1.0) ** 2 * 0.9 + 0.1
     # Start from the patch offset along its own normals (plus how deep the smoothed patch sank
     # into the body): a smooth tube offset along its normals cannot fold, so the sleeves are

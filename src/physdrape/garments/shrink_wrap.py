@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from physdrape.garments.body_fields import BodyFields
+from physdrape.garments.body_fields import BodyFields, LegFields
 from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.geometry.intersections import self_intersecting_faces
 from physdrape.geometry.topology import boundary_edges, undirected_edges, vertex_adjacency
@@ -20,7 +20,7 @@ __all__ = ["shrink_wrap"]
 
 
 def shrink_wrap(
-    x: np.ndarray, faces: np.ndarray, offset: np.ndarray, f: BodyFields, *, iterations: int, margin: float,
+    x: np.ndarray, faces: np.ndarray, offset: np.ndarray, f: BodyFields | LegFields, *, iterations: int, margin: float,
     smooth_weight: np.ndarray | None = None,
 ) -> np.ndarray:
     """Offset surface that bridges concavities: smooth, then push out to ≥ `offset`.
@@ -92,7 +92,7 @@ def _relax_tangential(x: np.ndarray, faces: np.ndarray, adj, step: float = 0.5) 
     return x + step * (delta - (delta * nrm).sum(1, keepdims=True) * nrm)
 
 
-def _untangle(x, faces, sweep, adj, f: BodyFields, *, margin: float, rounds: int = 15) -> np.ndarray:
+def _untangle(x, faces, sweep, adj, f: BodyFields | LegFields, *, margin: float, rounds: int = 15) -> np.ndarray:
     """Remove self-intersections left in creases by local smoothing that keeps the margin.
 
     Each round smooths the vertices of intersecting faces and a few rings around them (the

@@ -1,0 +1,34 @@
+"""Every procedural garment by name: the tops (`garments.generator`), the trousers and shorts
+(`garments.trousers`) and the outfits of a top over trousers (`garments.outfits`).
+
+A name and a seed make one garment, the first of the seed's draws that passes validation; this is
+what the CLI's `--category NAME --seed N` and a `NAME:N` garment spec drape.
+"""
+
+from __future__ import annotations
+
+from physdrape.garments.generator import generate_valid_garment
+from physdrape.garments.outfits import generate_valid_outfit
+from physdrape.garments.trousers import generate_valid_trousers
+
+__all__ = ["TOPS", "LOWER", "OUTFIT", "CATEGORIES", "generate_valid"]
+
+#: The tops' categories (`generator.GarmentCategory`).
+TOPS = ("tshirt", "longsleeve", "tanktop", "croptop")
+#: The lower-body families (`trousers.TrousersKind`).
+LOWER = ("shorts", "capri", "trousers")
+#: A top over trousers or shorts, one two-piece garment.
+OUTFIT = "outfit"
+CATEGORIES = TOPS + LOWER + (OUTFIT,)
+
+
+def generate_valid(category: str, seed: int, *, target_edge: float = 0.015, body=None):
+    """The garment `category`:`seed` as (GarmentTemplate, attempt): the first parameter draw of the
+    seed that passes validation (`GarmentError` when none of the generator's attempts does)."""
+    if category in TOPS:
+        return generate_valid_garment(category, seed, target_edge=target_edge, body=body)
+    if category in LOWER:
+        return generate_valid_trousers(category, seed, target_edge=target_edge, body=body)
+    if category == OUTFIT:
+        return generate_valid_outfit(seed, target_edge=target_edge, body=body)
+    raise ValueError(f"unknown garment category {category!r}; choose one of {', '.join(CATEGORIES)}")
