@@ -1,7 +1,7 @@
 """How far the model's energies on the test instances have moved since `results/eval.json` was written.
 
     .venv/bin/python bench/eval_drift.py [--eval results/eval.json] [--checkpoint DIR] [--[no-]follow-planes]
-        [--out results/eval_drift]
+        [--makehuman ../shared/data/makehuman_cc0] [--out results/eval_drift]
 
 Reruns the model rows of the evaluation (GNN only, PhysDrape at T = 3 and T = 15, and the solver
 alone at T = 3 and T = 15) on the evaluation's test instances with the bundled model (or
@@ -11,7 +11,9 @@ column, without rerunning the oracle (about an hour), the mean B2G % beside the 
 and the mean E_strain over the references' (as `eval.md`'s E_strain ratio). A row the eval
 file lacks shows its values now only. A change that should leave the drape's physics alone
 (a faster kernel, a cache) is checked this way; a change of the physics needs the full
-`physdrape eval`. Writes <out>.md and <out>.json with the command and the commit.
+`physdrape eval`. With `--makehuman DIR` the MakeHuman suits of the eval file (worn as the
+evaluation wears them) are compared the same way, in a table of their own. Writes <out>.md and
+<out>.json with the command and the commit.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import sys
 from pathlib import Path
 
 import torch
+from eval_record import suit_instances
 from report import source_lines, write_report
 
 from physdrape.body.anny_body import get_anny_body
@@ -51,36 +54,15 @@ def _planes_note(solver, override: bool | None) -> str:
     return f", the solver's body planes {held} between body queries every {every} steps{flag}"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--eval", default="results/eval.json", help="the evaluation record to compare with")
-    parser.add_argument("--checkpoint", default="", help="the model to run (default: the bundled one)")
-    parser.add_argument("--out", default="results/eval_drift")
-    parser.add_argument("--follow-planes", action=argparse.BooleanOptionalAction,
-                        help="the solver's body planes followed at every step, or held between body queries "
-                             "(`Draper(follow_planes=...)`; default: the checkpoint's)")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    with open(args.eval) as handle:
-        record = json.load(handle)
-    test = record["sets"]["test"]
-    reference = [r["energy_total"] for r in test["reference"]["per_instance"]]
-    recorded = {row: [r["energy_total"] for r in test["rows"][row]["per_instance"]] for row in ROWS if row in test["rows"]}
-    recorded_b2g = {row: [r["b2g_percent"] for r in test["rows"][row]["per_instance"]] for row in recorded}
-    reference_strain = [r["strain"] for r in test["reference"]["per_instance"]]
-    recorded_strain = {row: [r["strain"] for r in test["rows"][row]["per_instance"]] for row in recorded}
-    config = EvalConfig(**{k: v for k, v in record["config"].items() if k in EvalConfig.__dataclass_fields__})
-    instances = split_instances(config, get_anny_body())
-    if len(instances) != len(reference):
-        sys.exit(f"{args.eval} has {len(reference)} test instances but its config gives {len(instances)} here: "
-                 "the garment split or the config differ; rerun `physdrape eval` instead")
-    checkpoint = Path(args.checkpoint or bundled_model()).resolve()
-    if checkpoint.is_relative_to(Path.cwd()):
-        checkpoint = checkpoint.relative_to(Path.cwd())  # a path inside the repository names no machine
-    models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
-    if args.follow_planes is not None:
-        for model in models.values():
-            model.set_eval_planes(args.follow_planes)
+def _drift(recorded_set: dict, instances: list, models: dict) -> tuple[list[dict], dict]:
+    """(rows, per-instance values) of one set of the eval file: the model rows run again on its
+    instances, against the set's recorded rows and references."""
+    reference = [r["energy_total"] for r in recorded_set["reference"]["per_instance"]]
+    rows_in = recorded_set["rows"]
+    recorded = {row: [r["energy_total"] for r in rows_in[row]["per_instance"]] for row in ROWS if row in rows_in}
+    recorded_b2g = {row: [r["b2g_percent"] for r in rows_in[row]["per_instance"]] for row in recorded}
+    reference_strain = [r["strain"] for r in recorded_set["reference"]["per_instance"]]
+    recorded_strain = {row: [r["strain"] for r in rows_in[row]["per_instance"]] for row in recorded}
     contact = Contact.of(models[Variant.FULL])
     now = {row: [] for row in ROWS}
     b2g = {row: [] for row in ROWS}
@@ -107,22 +89,14 @@ def main() -> None:
                      "strain_ratio_recorded": (sum(recorded_strain[row]) / sum(reference_strain)
                                                if row in recorded else None),
                      "strain_ratio_now": sum(strain[row]) / sum(reference_strain)})
-    command = shlex.join(["python", *sys.argv])
-    out = {"command": command, "provenance": provenance(), "eval_file": args.eval, "checkpoint": str(checkpoint),
-           "eval_commit": record["versions"].get("git_commit"),
-           "load_average": os.getloadavg(), "instances": len(instances), "rows": rows,
-           "per_instance": {"reference": reference, "recorded": recorded, "now": now,
-                            "b2g_percent_recorded": recorded_b2g, "b2g_percent_now": b2g,
-                            "reference_strain": reference_strain, "strain_recorded": recorded_strain,
-                            "strain_now": strain}}
-    lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
-             *source_lines(command, out["provenance"]),
-             f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
-             f"instances, its references; model `{checkpoint}`"
-             + _planes_note(models[Variant.FULL].solver, args.follow_planes)
-             + "; 1 torch thread; load average "
-             + ", ".join(f"{v:.2f}" for v in out["load_average"]), "",
-             "| row | E_total / reference, recorded | now | change | largest change of one instance "
+    per_instance = {"reference": reference, "recorded": recorded, "now": now, "b2g_percent_recorded": recorded_b2g,
+                    "b2g_percent_now": b2g, "reference_strain": reference_strain, "strain_recorded": recorded_strain,
+                    "strain_now": strain}
+    return rows, per_instance
+
+
+def _table(rows: list[dict]) -> list[str]:
+    lines = ["| row | E_total / reference, recorded | now | change | largest change of one instance "
              "| B2G % (mean), recorded | now | E_strain / reference's, recorded | now |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
@@ -133,6 +107,61 @@ def main() -> None:
         lines.append(f"| {r['row']} | {r['ratio_recorded']:.4f} | {r['ratio_now']:.4f} | {100 * r['change']:+.2f} % | "
                      f"{100 * r['largest_instance_change']:.2f} % | {r['b2g_percent_recorded']:.2f} | "
                      f"{r['b2g_percent_now']:.2f} | {r['strain_ratio_recorded']:.3f} | {r['strain_ratio_now']:.3f} |")
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--eval", default="results/eval.json", help="the evaluation record to compare with")
+    parser.add_argument("--checkpoint", default="", help="the model to run (default: the bundled one)")
+    parser.add_argument("--makehuman", default="", help="also the eval file's MakeHuman suits, read from this folder")
+    parser.add_argument("--out", default="results/eval_drift")
+    parser.add_argument("--follow-planes", action=argparse.BooleanOptionalAction,
+                        help="the solver's body planes followed at every step, or held between body queries "
+                             "(`Draper(follow_planes=...)`; default: the checkpoint's)")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    with open(args.eval) as handle:
+        record = json.load(handle)
+    config = EvalConfig(**{k: v for k, v in record["config"].items() if k in EvalConfig.__dataclass_fields__})
+    instances = split_instances(config, get_anny_body())
+    if len(instances) != len(record["sets"]["test"]["reference"]["per_instance"]):
+        sys.exit(f"{args.eval} has {len(record['sets']['test']['reference']['per_instance'])} test instances but "
+                 f"its config gives {len(instances)} here: the garment split or the config differ; rerun "
+                 "`physdrape eval` instead")
+    sets = {"test": instances}
+    if args.makehuman:
+        sets["makehuman"] = suit_instances(args.eval, args.makehuman)[0]
+    checkpoint = Path(args.checkpoint or bundled_model()).resolve()
+    if checkpoint.is_relative_to(Path.cwd()):
+        checkpoint = checkpoint.relative_to(Path.cwd())  # a path inside the repository names no machine
+    models = {variant: load_model(checkpoint, variant=variant)[0].eval() for variant in {v for v, _, _ in ROWS.values()}}
+    if args.follow_planes is not None:
+        for model in models.values():
+            model.set_eval_planes(args.follow_planes)
+    found = {name: _drift(record["sets"][name], todo, models) for name, todo in sets.items()}
+    command = shlex.join(["python", *sys.argv])
+    rows, per_instance = found["test"]
+    out = {"command": command, "provenance": provenance(), "eval_file": args.eval, "checkpoint": str(checkpoint),
+           "eval_commit": record["versions"].get("git_commit"),
+           "load_average": os.getloadavg(), "instances": len(instances), "rows": rows, "per_instance": per_instance}
+    if "makehuman" in found:
+        out["makehuman"] = {"instances": len(sets["makehuman"]), "rows": found["makehuman"][0],
+                            "per_instance": found["makehuman"][1]}
+    lines = ["# The model's energies on the test instances against those recorded in the evaluation", "",
+             *source_lines(command, out["provenance"]),
+             f"Compared with `{args.eval}` (written at commit `{out['eval_commit']}`), {len(instances)} test "
+             f"instances{' and the MakeHuman suits' if 'makehuman' in found else ''}, its references; model "
+             f"`{checkpoint}`"
+             + _planes_note(models[Variant.FULL].solver, args.follow_planes)
+             + "; 1 torch thread; load average "
+             + ", ".join(f"{v:.2f}" for v in out["load_average"]), ""]
+    for name, title in (("test", "Test instances"), ("makehuman", "MakeHuman suits")):
+        if name not in found:
+            continue
+        if len(found) > 1:
+            lines += [f"## {title} ({len(sets[name])})", ""]
+        lines += _table(found[name][0]) + [""]
     write_report(args.out, lines, out)
 
 

@@ -40,7 +40,7 @@ from physdrape.geometry.intersections import piece_crossings
 from physdrape.geometry.proximity import BodySurface
 from physdrape.model import DrapeInput
 from physdrape.physics import Cloth, Material
-from physdrape.physics.grip import Grip
+from physdrape.physics.grip import DEFAULT_GRIP_STIFFNESS, Grip
 from physdrape.physics.layers import LayerOrder, push_outer_out
 from physdrape.physics.stitches import DEFAULT_STITCH_STIFFNESS, Stitches
 from physdrape.tensor_memo import KeyedMemo
@@ -420,6 +420,15 @@ class DrapePipeline:
                                   stiffness=torch.full((len(pairs),), DEFAULT_STITCH_STIFFNESS, dtype=batch.dtype,
                                                        device=batch.device)))
         return Stitches.cat(parts) if parts else None
+
+    def worn_job(self, template: Template, body: int, material, x_init: Tensor | None = None) -> Job:
+        """A job of `template` worn as `Draper.drape` wears it by default, without sizing or
+        closures (what training drapes): a garment of several pieces (an outfit) has its lower
+        piece's waistband gripped (`physics.grip`, the default κ) and its pieces kept in layer
+        order; a one-piece garment has neither to grip nor to order."""
+        if self._parts(template).num_pieces < 2:
+            return Job(template, body, material, x_init)
+        return Job(template, body, material, x_init, grip=DEFAULT_GRIP_STIFFNESS, layers=True)
 
     def _parts(self, template: Template) -> GarmentParts:
         """The template's pieces (`garments.pieces.garment_parts`; found once)."""

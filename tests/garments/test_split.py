@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from physdrape.garments import GarmentCategory, GarmentTemplate, generate_valid_garment, load_split, make_split
+from physdrape.garments import GarmentCategory, GarmentTemplate, load_split, make_split
 from physdrape.garments import split as split_module
+from physdrape.garments.catalogue import generate_valid
 from physdrape.garments.io import sha256_file
 from physdrape.garments.split import main, split_entries
 
@@ -88,9 +89,9 @@ def test_an_interrupted_generation_resumes_with_only_the_missing_garments(tmp_pa
         if len(made) == 2 and interrupt:
             raise KeyboardInterrupt  # Ctrl-C while the third garment is being made
         made.append(category)
-        return generate_valid_garment(category, seed, **kwargs)
+        return generate_valid(category, seed, **kwargs)
 
-    monkeypatch.setattr(split_module, "generate_valid_garment", counted)
+    monkeypatch.setattr(split_module, "generate_valid", counted)
     interrupt = True
     with pytest.raises(KeyboardInterrupt):
         make_split(split, seed=0, num_train=2, num_test=2, workers=1)

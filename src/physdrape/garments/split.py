@@ -1,11 +1,15 @@
-"""The fixed, seeded garment split: 600 training and 30 test procedural garments.
+"""The fixed, seeded garment split: 600 training and 30 test procedural tops, and as many
+procedural outfits (a top over trousers, `garments.outfits`) for training as asked for.
 
-    python -m physdrape.garments.split --out DIR [--seed 0] [--num-train 600] [--num-test 30] [--workers N]
+    python -m physdrape.garments.split --out DIR [--seed 0] [--num-train 600] [--num-test 30]
+        [--num-outfits N] [--workers N]
 
-Writes DIR/train/NNNN_<category>.ply, DIR/test/NNNN_<category>.ply (binary PLY, float64,
-deterministic bytes) and DIR/manifest.json (parameters, attempt, vertex/face counts, sha256).
-Train and test draw from disjoint seed streams; categories cycle, so every category is in the
-test set.
+Writes DIR/train/NNNN_<category>.ply, DIR/test/NNNN_<category>.ply, DIR/outfits/NNNN_outfit.ply
+(binary PLY, float64, deterministic bytes) and DIR/manifest.json (parameters, attempt,
+vertex/face counts, sha256). The subsets draw from disjoint seed streams; the tops' categories
+cycle, so every category is in the test set. The outfits are not part of the protocol's fixed
+sizes: a split holds the first `num_outfits` of them that any caller asked for, and asking for more
+adds them.
 
 Every garment is a pure function of (seed, subset, index), so a split directory may hold any part
 of the split. Generation adds the garments that are missing (or whose file no longer matches its
@@ -36,14 +40,10 @@ import torch
 
 from physdrape.atomic import write_text
 from physdrape.garments.canonical import CanonicalBody, canonical_body
-from physdrape.garments.generator import (
-    COLLISION_MARGIN,
-    GarmentCategory,
-    GarmentParams,
-    GarmentTemplate,
-    generate_valid_garment,
-)
+from physdrape.garments.catalogue import OUTFIT, generate_valid
+from physdrape.garments.generator import COLLISION_MARGIN, GarmentCategory, GarmentParams, GarmentTemplate
 from physdrape.garments.io import read_ply, sha256_file, write_ply
+from physdrape.garments.outfits import OutfitParams
 from physdrape.progress import progress_bar
 
 try:  # POSIX: processes generating into one directory take turns
@@ -60,19 +60,20 @@ SPLIT_FORMAT = "physdrape-garment-split/3"  # 2: remeshing cleans short edges an
 
 DEFAULT_SEED = 0
 DEFAULT_SIZES = {"train": 600, "test": 30}
-_SUBSETS = {"train": 1, "test": 2}
+_SUBSETS = {"train": 1, "test": 2, "outfits": 3}
 _GENERATE_HINT = "python -m physdrape.garments.split --out {dir}"
 
 
-def split_entries(seed: int, num_train: int, num_test: int) -> list[dict]:
+def split_entries(seed: int, num_train: int, num_test: int, num_outfits: int = 0) -> list[dict]:
     """The (subset, index, category, garment seed) of every garment of a split; entry (subset,
     index) depends on `seed` only, not on the subset sizes."""
     cats = list(GarmentCategory)
     out = []
-    for subset, n in (("train", num_train), ("test", num_test)):
+    for subset, n in (("train", num_train), ("test", num_test), ("outfits", num_outfits)):
         for i in range(n):
             gseed = int(np.random.SeedSequence([int(seed), _SUBSETS[subset], i]).generate_state(1)[0])
-            out.append(dict(subset=subset, index=i, category=cats[i % len(cats)].value, seed=gseed))
+            category = OUTFIT if subset == "outfits" else cats[i % len(cats)].value
+            out.append(dict(subset=subset, index=i, category=category, seed=gseed))
     return out
 
 
@@ -97,7 +98,7 @@ def _body() -> CanonicalBody:
 def _make_one(job: tuple[dict, str, float]) -> dict:
     """Generate one entry's garment into out_dir; its manifest row."""
     entry, out_dir, target_edge = job
-    g, attempt = generate_valid_garment(entry["category"], entry["seed"], target_edge=target_edge, body=_body())
+    g, attempt = generate_valid(entry["category"], entry["seed"], target_edge=target_edge, body=_body())
     digest = write_ply(Path(out_dir) / _file(entry), g.verts, g.faces)
     return dict(
         entry, file=_file(entry), attempt=attempt, params=g.params.to_dict(), num_verts=g.num_verts,
@@ -173,9 +174,12 @@ def _locked(split_dir: Path, *, say: bool) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
-def _ignore_sigint() -> None:
-    """Pool workers leave Ctrl-C to the parent, which stops them and keeps the manifest."""
+def _start_worker() -> None:
+    """Pool workers leave Ctrl-C to the parent, which stops them and keeps the manifest, and run
+    torch on one thread: a forked child entering a parallel region of the OpenMP pool its parent
+    started would wait forever (the outfits' layer check runs torch)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    torch.set_num_threads(1)
 
 
 @contextlib.contextmanager
@@ -188,7 +192,7 @@ def _runner(workers: int) -> Iterator:
     method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
     if method == "fork":
         _body()  # built once here, shared by the forked workers
-    with mp.get_context(method).Pool(workers, initializer=_ignore_sigint) as pool:
+    with mp.get_context(method).Pool(workers, initializer=_start_worker) as pool:
         yield lambda jobs: pool.imap_unordered(_make_one, jobs)
 
 
@@ -204,6 +208,7 @@ def make_split(
     seed: int = DEFAULT_SEED,
     num_train: int = DEFAULT_SIZES["train"],
     num_test: int = DEFAULT_SIZES["test"],
+    num_outfits: int = 0,
     target_edge: float = 0.015,
     subset: str | None = None,
     count: int | None = None,
@@ -220,8 +225,9 @@ def make_split(
         seed: split seed; every garment is a pure function of it and its (subset, index).
         num_train, num_test: subset sizes (the paper's protocol: 600 / 30); an existing split
             directory must have been made with the same sizes, seed and target_edge.
+        num_outfits: the outfits asked for; the split records the most any call asked for.
         target_edge: garment edge length [m].
-        subset: generate only this subset ("train" / "test"); None: both.
+        subset: generate only this subset ("train" / "test" / "outfits"); None: all three.
         count: generate only the first `count` garments of each chosen subset; None: all.
         workers: processes (default `os.cpu_count()`; results do not depend on it).
         progress: print where the split goes and how many garments are missing, and a progress bar
@@ -234,8 +240,7 @@ def make_split(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     params = dict(seed=int(seed), num_train=int(num_train), num_test=int(num_test), target_edge=float(target_edge))
-    sizes = {"train": params["num_train"], "test": params["num_test"]}
-    wanted = [e for e in split_entries(seed, num_train, num_test)
+    wanted = [e for e in split_entries(seed, num_train, num_test, num_outfits)
               if subset in (None, e["subset"]) and (count is None or e["index"] < count)]
     with _locked(out_dir, say=progress):
         manifest = read_manifest(out_dir)
@@ -245,6 +250,8 @@ def make_split(
                             units="m, y-up, canonical Anny body (phenotypes 0.5, rest pose)", garments=[])
         else:
             _check_same_split(manifest, out_dir, **params)
+        manifest["num_outfits"] = max(int(manifest.get("num_outfits", 0)), int(num_outfits))
+        sizes = {s: manifest[f"num_{s}"] for s in _SUBSETS}
         rows = {(r["subset"], r["index"]): r for r in manifest["garments"]}
         missing = [e for e in wanted if not _is_present(out_dir, rows.get((e["subset"], e["index"])), e)]
         if not missing and (out_dir / "manifest.json").is_file():
@@ -276,8 +283,8 @@ def make_split(
 def load_split(
     split_dir: str | os.PathLike, subset: str = "test", *, count: int | None = None, verify: bool = True
 ) -> list[GarmentTemplate]:
-    """Load one subset ("train" / "test") of a split written by `make_split`: all its garments, or
-    the first `count` (fewer when the subset is smaller).
+    """Load one subset ("train" / "test" / "outfits") of a split written by `make_split`: all its
+    garments, or the first `count` (fewer when the subset is smaller).
 
     Raises:
         FileNotFoundError when the manifest is missing; ValueError when a garment asked for is not
@@ -290,7 +297,7 @@ def load_split(
     if manifest is None:
         raise FileNotFoundError(
             f"{split_dir / 'manifest.json'} not found: generate the split first ({_GENERATE_HINT.format(dir=split_dir)})")
-    size = int(manifest[f"num_{subset}"])
+    size = int(manifest.get(f"num_{subset}", 0))
     wanted = size if count is None else min(count, size)
     rows = {r["index"]: r for r in manifest["garments"] if r["subset"] == subset}
     absent = [i for i in range(wanted) if i not in rows]
@@ -308,7 +315,8 @@ def load_split(
             raise ValueError(f"{path}: missing, or its sha256 differs from the manifest (the file changed): "
                              f"generate the split again ({_GENERATE_HINT.format(dir=split_dir)}), which remakes it")
         v, f = read_ply(path)
-        out.append(GarmentTemplate(verts=v, faces=f, params=GarmentParams.from_dict(row["params"]),
+        kind = OutfitParams if row["category"] == OUTFIT else GarmentParams
+        out.append(GarmentTemplate(verts=v, faces=f, params=kind.from_dict(row["params"]),
                                    name=Path(row["file"]).stem, meta=dict(row)))
     return out
 
@@ -321,13 +329,17 @@ def load_or_generate(
 
     A new directory becomes a split of the protocol's sizes (600 / 30, edge 1.5 cm) holding only
     the garments generated so far; an existing one keeps its manifest's sizes and edge length
-    (its seed must be `seed`).
+    (its seed must be `seed`). The outfits have no fixed size: `count` of them (required) are made.
     """
+    if subset == "outfits" and count is None:
+        raise ValueError("say how many outfits to load (count): the split has no fixed number of them")
     manifest = read_manifest(split_dir)
     sizes = dict(num_train=DEFAULT_SIZES["train"], num_test=DEFAULT_SIZES["test"], target_edge=0.015)
     if manifest is not None:
         sizes = {k: manifest[k] for k in sizes}
-    make_split(split_dir, seed=seed, subset=subset, count=count, workers=workers, progress=progress, **sizes)
+    outfits = count if subset == "outfits" else 0
+    make_split(split_dir, seed=seed, subset=subset, count=count, workers=workers, progress=progress,
+               num_outfits=outfits, **sizes)
     return load_split(split_dir, subset, count=count)
 
 
@@ -338,16 +350,17 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=DEFAULT_SEED)
     ap.add_argument("--num-train", type=int, default=DEFAULT_SIZES["train"])
     ap.add_argument("--num-test", type=int, default=DEFAULT_SIZES["test"])
+    ap.add_argument("--num-outfits", type=int, default=0, help="procedural outfits (a top over trousers) to add")
     ap.add_argument("--target-edge", type=float, default=0.015, help="edge length [m]")
     ap.add_argument("--subset", choices=sorted(_SUBSETS), help="generate only this subset (default: both)")
     ap.add_argument("--count", type=int, help="generate only the first N garments of each subset (default: all)")
     ap.add_argument("--workers", type=int, default=None, help="processes (default: the machine's CPU count)")
     args = ap.parse_args(argv)
     m = make_split(args.out, seed=args.seed, num_train=args.num_train, num_test=args.num_test,
-                   target_edge=args.target_edge, subset=args.subset, count=args.count, workers=args.workers,
-                   progress=True)
+                   num_outfits=args.num_outfits, target_edge=args.target_edge, subset=args.subset, count=args.count,
+                   workers=args.workers, progress=True)
     print(f"{Path(args.out) / 'manifest.json'} lists {len(m['garments'])} of the split's "
-          f"{m['num_train'] + m['num_test']} garments")
+          f"{m['num_train'] + m['num_test'] + m['num_outfits']} garments")
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from physdrape.garments.split import SPLIT_FORMAT, load_or_generate
 from physdrape.model import DrapeInput
 from physdrape.model.config import ModelConfig
 from physdrape.physics import Material
-from physdrape.pipeline import DrapePipeline, Job, PosedBodies, Template
+from physdrape.pipeline import DrapePipeline, PosedBodies, Template
 from physdrape.train.instances import InstanceCache, InstanceCacheError, part_pool
 from physdrape.train.materials import draw_material
 
@@ -76,6 +76,10 @@ class DataConfig:
     `physdrape.train.instances`), built on first use with `instance_count` training and
     `validation_count` validation instances; validation_garments: the last garments of the subset
     held out for validation; teacher_steps: two-level solver steps of each instance's teacher drape.
+
+    outfits: the split's first N procedural outfits (a top over trousers, `garments.outfits`)
+    trained on beside the subset's garments (0: none), worn as a Draper wears them (waistband
+    gripped, pieces in layer order: `DrapePipeline.worn_job`); they are never held out.
     """
 
     split_dir: str = ""
@@ -91,12 +95,15 @@ class DataConfig:
     validation_count: int = 8
     validation_garments: int = 16
     teacher_steps: int = 100
+    outfits: int = 0
 
     def __post_init__(self) -> None:
         if self.materials not in ("sampled", "default"):
             raise ValueError(f"DataConfig.materials must be 'sampled' or 'default', got {self.materials!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"DataConfig.dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.outfits < 0:
+            raise ValueError(f"DataConfig.outfits must be ≥ 0 (0 = none), got {self.outfits}")
         if self.max_garments < 0:
             raise ValueError(f"DataConfig.max_garments must be ≥ 0 (0 = the whole subset), got {self.max_garments}")
         if self.body_pool_size < 1:
@@ -107,7 +114,9 @@ class DataConfig:
 
 
 def load_templates(config: DataConfig, *, workers: int | None = None) -> list[Template]:
-    """The first `max_garments` garments of the split's `subset` (0: all of it) as templates.
+    """The first `max_garments` garments of the split's `subset` (0: all of it) as templates, with
+    the split's first `outfits` outfits placed before the subset's last `validation_garments` (the
+    held-out garments stay last).
 
     Only those garments are generated when missing (in `workers` processes, default one per CPU;
     an interrupted generation resumes), so a small `max_garments` starts in seconds.
@@ -115,6 +124,11 @@ def load_templates(config: DataConfig, *, workers: int | None = None) -> list[Te
     split_dir = Path(config.split_dir).expanduser() if config.split_dir else default_split_dir(config.split_seed)
     raw = load_or_generate(split_dir, config.subset, count=config.max_garments or None, seed=config.split_seed,
                            workers=workers)
+    if config.outfits:
+        held = min(config.validation_garments, len(raw))
+        outfits = load_or_generate(split_dir, "outfits", count=config.outfits, seed=config.split_seed,
+                                   workers=workers)
+        raw = raw[:len(raw) - held] + outfits + raw[len(raw) - held:]
     return [Template.from_mesh(g.verts, g.faces, name=g.name) for g in raw]
 
 
@@ -160,8 +174,8 @@ class DrapeSource:
         a pool body and a material; draped on the pool's bodies (`posed_pool`)."""
         if self.cache is not None:
             picks = [int(np.random.default_rng(seed).integers(len(self._train))) for seed in seeds]
-            jobs = [Job(self.templates[self._train[i].garment], self._train[i].body,
-                        Material(**self._train[i].material), self._tensors[i][0]) for i in picks]
+            jobs = [self.pipeline.worn_job(self.templates[self._train[i].garment], self._train[i].body,
+                                           Material(**self._train[i].material), self._tensors[i][0]) for i in picks]
             drape = self.pipeline.build(jobs, self.posed_pool())
             return TrainingBatch(drape, torch.cat([self._tensors[i][1] for i in picks]).to(self.dtype), tuple(picks))
         jobs = []
@@ -169,7 +183,7 @@ class DrapeSource:
             rng = np.random.default_rng(seed)
             g = int(rng.integers(len(self.templates)))
             body = int(rng.integers(len(self.pool)))
-            jobs.append(Job(self.templates[g], body, draw_material(rng, self.config.materials)))
+            jobs.append(self.pipeline.worn_job(self.templates[g], body, draw_material(rng, self.config.materials)))
         return TrainingBatch(self.pipeline.build(jobs, self.posed_pool()))
 
     def posed_pool(self) -> PosedBodies:
@@ -188,6 +202,6 @@ class DrapeSource:
         out = []
         for i, inst in enumerate(instances):
             x_init, teacher = self.cache.tensors("val", i)
-            job = Job(self.templates[inst.garment], 0, Material(**inst.material), x_init)
+            job = self.pipeline.worn_job(self.templates[inst.garment], 0, Material(**inst.material), x_init)
             out.append(TrainingBatch(self.pipeline.build([job], self.validation_pool.state(inst.body)), teacher.to(self.dtype)))
         return out

@@ -48,7 +48,7 @@ from physdrape.body.skinning_transfer import LIMIT_FIELDS, SkinningTransfer
 from physdrape.model.config import ModelConfig
 from physdrape.model.stretching_solver import SolverKind, StretchingSolver
 from physdrape.physics.energy import total_energy
-from physdrape.pipeline import DrapePipeline, Job, Template
+from physdrape.pipeline import DrapePipeline, Template
 from physdrape.train.materials import draw_material
 
 FORMAT = "physdrape-instances/1"
@@ -103,7 +103,10 @@ def _definition(data, model: ModelConfig) -> dict:
     """Everything the cached instances depend on (a cache made with other values is refused)."""
     keys = ("split_dir", "split_seed", "subset", "max_garments", "body_pool_size", "body_seed", "materials", "dtype",
             "validation_garments", "teacher_steps")
-    return {"data": {k: getattr(data, k) for k in keys},
+    found = {k: getattr(data, k) for k in keys}
+    if getattr(data, "outfits", 0):  # a cache without outfits keeps the definition it was written with
+        found["outfits"] = data.outfits
+    return {"data": found,
             "contact": {"stiffness": model.contact_stiffness, "margin": model.margin}, "teacher": TEACHER_SETTINGS,
             "x_init": X_INIT_SETTINGS}
 
@@ -211,7 +214,7 @@ class _InstanceMaker:
         g = self.garments[p][int(rng.integers(len(self.garments[p])))]
         b = int(rng.integers(len(self.pools[p])))
         material = draw_material(rng, self.data.materials)
-        drape = self.pipeline.build([Job(self.templates[g], 0, material)], self.pools[p].state(b))
+        drape = self.pipeline.build([self.pipeline.worn_job(self.templates[g], 0, material)], self.pools[p].state(b))
         with torch.no_grad():
             teacher = self.solver(drape.x_init, drape.cloth, f_hat=None, steps=self.data.teacher_steps,
                                   bodies=drape.bodies, body_index=drape.body_index)
