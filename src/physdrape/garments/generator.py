@@ -298,16 +298,29 @@ def generate_valid_garment(
         (garment, attempt). Raises `GarmentError` after `max_attempts` failures.
     """
     body = canonical_body() if body is None else body
+    return first_valid_draw(
+        lambda attempt: generate_garment(sample_params(category, seed, attempt=attempt), target_edge=target_edge,
+                                         body=body),
+        body=body, max_attempts=max_attempts, what=f"garment for {category} seed {seed}")
+
+
+def first_valid_draw(make, *, body: CanonicalBody, max_attempts: int, what: str,
+                     accept=None) -> tuple[GarmentTemplate, int]:
+    """The first of `make(attempt)` for attempt 0, 1, ... whose garment passes validation on `body`
+    (and `accept(garment)` when given), with its attempt recorded in its meta.
+
+    Returns:
+        (garment, attempt). Raises `GarmentError` naming `what` after `max_attempts` failures.
+    """
     report = None
     for attempt in range(max_attempts):
-        p = sample_params(category, seed, attempt=attempt)
-        g = generate_garment(p, target_edge=target_edge, body=body)
+        g = make(attempt)
         report = validate_garment(g.verts, g.faces, name=g.name, body=(body.verts, body.faces),
                                   margin=COLLISION_MARGIN)
-        if report.ok:
+        if report.ok and (accept is None or accept(g)):
             g.meta["attempt"] = attempt
             return g, attempt
-    raise GarmentError(f"no valid garment for {category} seed {seed} in {max_attempts} draws; last:\n{report}")
+    raise GarmentError(f"no valid {what} in {max_attempts} draws; last:\n{report}")
 
 
 def generate_batch(

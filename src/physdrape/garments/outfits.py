@@ -22,19 +22,19 @@ from scipy.spatial import cKDTree
 from physdrape.garments.body_fields import body_fields
 from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.generator import (
-    COLLISION_MARGIN,
     GarmentCategory,
     GarmentParams,
     GarmentTemplate,
+    first_valid_draw,
     generate_garment,
     sample_params,
 )
 from physdrape.garments.layering import layer_pairs
 from physdrape.garments.pieces import garment_parts
 from physdrape.garments.trousers import TrousersKind, TrousersParams, generate_trousers, sample_trousers_params
-from physdrape.garments.validate import GarmentError, validate_garment
 
-__all__ = ["LAYER_GAP", "OutfitParams", "sample_outfit_params", "generate_outfit", "generate_valid_outfit"]
+__all__ = ["LAYER_GAP", "OutfitParams", "sample_outfit_params", "generate_outfit", "top_is_outside",
+           "generate_valid_outfit"]
 
 #: Least clearance between the top and the trousers it covers [m].
 LAYER_GAP = 4e-3
@@ -113,12 +113,8 @@ def generate_valid_outfit(seed: int, *, target_edge: float = 0.015, max_attempts
     """The first draw (attempt 0, 1, ...) of `seed` whose outfit passes validation and keeps its top
     outside. Returns (outfit, attempt); raises `GarmentError` after `max_attempts` failures."""
     body = canonical_body() if body is None else body
-    report = None
-    for attempt in range(max_attempts):
-        g = generate_outfit(sample_outfit_params(seed, attempt=attempt), target_edge=target_edge, body=body)
-        report = validate_garment(g.verts, g.faces, name=g.name, body=(body.verts, body.faces),
-                                  margin=COLLISION_MARGIN)
-        if report.ok and top_is_outside(g, body):
-            g.meta["attempt"] = attempt
-            return g, attempt
-    raise GarmentError(f"no valid outfit for seed {seed} in {max_attempts} draws; last:\n{report}")
+    return first_valid_draw(
+        lambda attempt: generate_outfit(sample_outfit_params(seed, attempt=attempt), target_edge=target_edge,
+                                        body=body),
+        body=body, max_attempts=max_attempts, what=f"outfit for seed {seed}",
+        accept=lambda outfit: top_is_outside(outfit, body))

@@ -29,11 +29,10 @@ from scipy.spatial import cKDTree
 from physdrape.garments.body_fields import BodyFields, LegFields, body_fields, leg_fields
 from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.clipping import clip_mesh
-from physdrape.garments.generator import COLLISION_MARGIN, GarmentTemplate
+from physdrape.garments.generator import COLLISION_MARGIN, GarmentTemplate, first_valid_draw
 from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.garments.remesh import remesh
 from physdrape.garments.shrink_wrap import shrink_wrap
-from physdrape.garments.validate import GarmentError, validate_garment
 from physdrape.geometry.intersections import ray_hit_distances
 
 __all__ = ["TrousersKind", "TrousersParams", "sample_trousers_params", "trousers_coverage", "generate_trousers",
@@ -169,12 +168,7 @@ def generate_valid_trousers(
         (garment, attempt). Raises `GarmentError` after `max_attempts` failures.
     """
     body = canonical_body() if body is None else body
-    report = None
-    for attempt in range(max_attempts):
-        g = generate_trousers(sample_trousers_params(kind, seed, attempt=attempt), target_edge=target_edge, body=body)
-        report = validate_garment(g.verts, g.faces, name=g.name, body=(body.verts, body.faces),
-                                  margin=COLLISION_MARGIN)
-        if report.ok:
-            g.meta["attempt"] = attempt
-            return g, attempt
-    raise GarmentError(f"no valid {TrousersKind(kind).value} for seed {seed} in {max_attempts} draws; last:\n{report}")
+    return first_valid_draw(
+        lambda attempt: generate_trousers(sample_trousers_params(kind, seed, attempt=attempt), target_edge=target_edge,
+                                          body=body),
+        body=body, max_attempts=max_attempts, what=f"{TrousersKind(kind).value} for seed {seed}")
