@@ -423,12 +423,13 @@ class DrapePipeline:
 
     def worn_job(self, template: Template, body: int, material, x_init: Tensor | None = None) -> Job:
         """A job of `template` worn as `Draper.drape` wears it by default, without sizing or
-        closures (what training drapes): a garment of several pieces (an outfit) has its lower
-        piece's waistband gripped (`physics.grip`, the default κ) and its pieces kept in layer
-        order; a one-piece garment has neither to grip nor to order."""
-        if self._parts(template).num_pieces < 2:
+        closures (what training drapes): a garment with a lower piece (an outfit, trousers) has
+        its waistband gripped (`physics.grip`, the default κ), one of several pieces has them kept
+        in layer order; a one-piece top has neither to grip nor to order."""
+        parts = self._parts(template)
+        if parts.lower is None:
             return Job(template, body, material, x_init)
-        return Job(template, body, material, x_init, grip=DEFAULT_GRIP_STIFFNESS, layers=True)
+        return Job(template, body, material, x_init, grip=DEFAULT_GRIP_STIFFNESS, layers=parts.num_pieces > 1)
 
     def _parts(self, template: Template) -> GarmentParts:
         """The template's pieces (`garments.pieces.garment_parts`; found once)."""

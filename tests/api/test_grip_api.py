@@ -54,3 +54,21 @@ def test_draper_grip_holds_the_waistband_and_checks_its_value(draper):
     for bad in (-1.0, float("nan"), "tight", True):
         with pytest.raises(DrapeError, match="grip must be a stiffness"):
             draper.drape(str(SUIT), grip=bad)
+
+
+def test_trousers_worn_alone_are_gripped_and_stay_on(draper):
+    """A pair of trousers alone is a lower piece too: its waistband is gripped, so the trousers stay
+    where they are worn instead of sliding down the legs (without the grip the waistband of
+    trousers:0 falls about 20 cm in 15 steps)."""
+    template = draper.garment("trousers:0")
+    parts = garment_parts(template.verts, template.faces)
+    assert parts.num_pieces == 1 and parts.lower == 0 and parts.waistband is not None
+    assert template.verts[parts.waistband, 1].mean() > template.verts[:, 1].max() - 0.05  # the top opening
+    assert garment_parts(draper.garment("default").verts, draper.garment("default").faces).lower is None
+
+    def drop(res):
+        return float((res.x_init[parts.waistband, 1] - res.verts[parts.waistband, 1]).mean())
+
+    [held] = draper.drape("trousers:0", pose="stand", steps=8)
+    [loose] = draper.drape("trousers:0", pose="stand", steps=8, grip=0)
+    assert drop(held) < 5e-3 and drop(loose) > 5e-2, (drop(held), drop(loose))

@@ -281,10 +281,11 @@ class Draper:
                 the skinning transfer's shape part), so a garment is worn where it was authored;
                 "fixed" keeps the template's (try-on: one size on every body). None: "fit" for
                 .mhclo garments, "fixed" for the others.
-            grip: the grip stiffness κ [N/m³] of a multi-piece garment's waistband (`physics.grip`:
-                its strip of fabric held tangentially where it was put on, as friction and elastic
-                hold a waistband); 0 turns it off; None: `DEFAULT_GRIP_STIFFNESS`. Garments
-                without a lower piece (tops, one-piece garments) have no waistband to grip.
+            grip: the grip stiffness κ [N/m³] of the waistband of a garment's lower piece
+                (trousers, a skirt, alone or under a top; `physics.grip`: its strip of fabric held
+                tangentially where it was put on, as friction and elastic hold a waistband); 0
+                turns it off; None: `DEFAULT_GRIP_STIFFNESS`. Tops have no waistband to grip
+                (`garments.pieces`).
             closures: what ties a garment's overlapping panels (button and wrap fronts) with
                 stitches (`physics.stitches`): "auto" (where the template's panels overlap on the
                 canonical body, `garments.closures`), "off", or the stitched vertex pairs of the

@@ -349,9 +349,9 @@ def add_parser(sub) -> None:
     g.add_argument("--sizing", choices=("fit", "fixed"), default=None, help="the garment's rest shape on the body: "
                    "fit = follows the body's shape (worn where it was authored), fixed = the template's (one size "
                    "tried on); default fit for .mhclo, fixed for other garments")
-    g.add_argument("--grip", type=float, default=None, metavar="K", help="grip stiffness [N/m^3] of a multi-piece "
-                   "garment's waistband, held where it was put on as friction holds it (0: off; default "
-                   f"{DEFAULT_GRIP_STIFFNESS:g})")
+    g.add_argument("--grip", type=float, default=None, metavar="K", help="grip stiffness [N/m^3] of the "
+                   "waistband of trousers or a skirt (alone or under a top), held where it was put on as friction "
+                   f"holds it (0: off; default {DEFAULT_GRIP_STIFFNESS:g})")
     g.add_argument("--closures", choices=("auto", "off"), default="auto", help="tie a garment's overlapping panels "
                    "(button and wrap fronts, layered collars) with stitches where they overlap on the canonical body "
                    "(default auto)")

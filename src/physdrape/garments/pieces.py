@@ -8,12 +8,14 @@ body, rest pose, y-up, the body's axis at x = 0):
 
 - pieces: the connected components of the mesh;
 - the **lower piece**: with two or more pieces, the one that reaches lowest (trousers, a skirt);
+  a one-piece garment is one when it stays below `LOWER_BODY_TOP` (trousers or a skirt worn
+  alone: every top reaches the shoulders);
 - **torso openings**: boundary loops whose centre lies within `axis_radius` of the body's vertical
   axis (sleeve cuffs and trouser legs lie off it);
 - the **waistband**: the lower piece's highest torso opening;
 - the **hem**: the lowest torso opening of the other (upper) pieces.
 
-A one-piece garment has no lower piece (waistband None); a garment without a top has no hem.
+A one-piece top has no lower piece (waistband None); a garment without a top has no hem.
 """
 
 from __future__ import annotations
@@ -24,7 +26,11 @@ import numpy as np
 
 from physdrape.geometry.topology import boundary_loops, connected_components
 
-__all__ = ["GarmentParts", "garment_parts", "waistband_band"]
+__all__ = ["LOWER_BODY_TOP", "GarmentParts", "garment_parts", "waistband_band"]
+
+#: Height [m] on the canonical body that a one-piece garment worn on the lower body stays below:
+#: above the waist (about 0.05 m), below the armpits (0.39 m); every top reaches the shoulders.
+LOWER_BODY_TOP = 0.3
 
 
 @dataclass(frozen=True)
@@ -34,7 +40,7 @@ class GarmentParts:
     Attributes:
         piece: connected component of each vertex, shape (V,) int64, numbered 0 … P−1.
         num_pieces: P.
-        lower: the lower piece's number, or None (a single piece).
+        lower: the lower piece's number, or None (a one-piece top).
         waistband: vertex indices of the lower piece's waistband (K,) int64, or None.
         hem: vertex indices of the upper pieces' hem (K,) int64, or None.
     """
@@ -64,6 +70,8 @@ def garment_parts(verts: np.ndarray, faces: np.ndarray, *, axis_radius: float = 
         lowest = np.full(num_pieces, np.inf)
         np.minimum.at(lowest, piece, x[:, 1])
         lower = int(np.argmin(lowest))
+    elif num_pieces == 1 and float(x[:, 1].max()) < LOWER_BODY_TOP:
+        lower = 0
     waistband = hem = None
     if lower is not None:
         own = [loop for loop in torso if piece[loop[0]] == lower]
