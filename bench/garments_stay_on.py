@@ -1,11 +1,13 @@
-"""Do real multi-piece garments stay where they are worn? The five CC0 MakeHuman suits on three
-seeded bodies from slim to heavy, draped through the public API.
+"""Do real multi-piece garments stay where they are worn? The five CC0 MakeHuman suits (and any
+other garment specs, e.g. generated trousers and outfits) on three seeded bodies from slim to
+heavy, draped through the public API.
 
-Run: .venv/bin/python bench/garments_stay_on.py [--suits ../shared/data/makehuman_cc0]
-     [--variant NAME:KEY=VALUE,...]... [--steps 15] [--threads 1] [--out results/garments_stay_on]
-     [--render-variant NAME] [--render-size 360]
+Run: .venv/bin/python bench/garments_stay_on.py [--suits ../shared/data/makehuman_cc0 | --no-suits]
+     [--garment SPEC]... [--variant NAME:KEY=VALUE,...]... [--steps 15] [--threads 1]
+     [--out results/garments_stay_on] [--render-variant NAME] [--render-size 360]
 
-Each suit (`.mhclo`) × body is one `Draper.drape(suit.mhclo, shape=..., pose=...)` call per
+Each suit (`.mhclo`, or a `--garment` spec: `trousers:0`, `outfit:2`, a file) × body is one
+`Draper.drape(spec, shape=..., pose=...)` call per
 variant; a variant is a name and keyword arguments of `Draper.drape` (e.g. ``fixed:sizing=fixed``;
 values are parsed as JSON where they parse, else kept as text). The bodies: phenotypes drawn
 from a seeded generator in [0.25, 0.75] with weight set to 0.1 (slim), 0.5 and 0.9 (heavy); poses
@@ -173,10 +175,10 @@ def fmt(value, digits: int = 2) -> str:
 
 
 def markdown(record: dict) -> str:
-    lines = ["# Garments stay where they are worn: the MakeHuman suits on slim to heavy bodies", "",
+    lines = ["# Garments stay where they are worn: multi-piece and lower-body garments on slim to heavy bodies", "",
              f"Command: `{record['command']}`  ", f"Git commit: `{record['provenance']['git_commit']}`"
              + (" (with uncommitted changes)" if record["provenance"]["git_dirty"] else ""), "",
-             f"`Draper.drape(suit.mhclo, shape=..., pose=...)`, T = {record['config']['steps']}, torch threads "
+             f"`Draper.drape(garment, shape=..., pose=...)`, T = {record['config']['steps']}, torch threads "
              f"{record['config']['threads']}. Bodies (phenotypes {', '.join(PHENOTYPE_NAMES)}):", ""]
     for (label, _, pose), shape in zip(BODIES, record["bodies"]):
         lines.append(f"- **{label}**: {', '.join(f'{k} {v:g}' for k, v in shape.items())}; pose `{pose}`")
@@ -234,6 +236,9 @@ def markdown(record: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--suits", type=Path, default=Path("../shared/data/makehuman_cc0"))
+    parser.add_argument("--no-suits", action="store_true", help="only the --garment specs")
+    parser.add_argument("--garment", action="append", default=[],
+                        help="a garment spec of Draper.drape to measure too (repeatable), e.g. trousers:0, outfit:2")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:KEY=VALUE,... keyword arguments of Draper.drape (repeatable; default 'default:')")
     parser.add_argument("--steps", type=int, default=15)
@@ -245,16 +250,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     command = "python " + shlex.join(sys.argv if argv is None else ["bench/garments_stay_on.py", *argv])
-    suits = sorted(args.suits.glob("*/*.mhclo"))
-    if not suits:
+    suits = [] if args.no_suits else [str(p) for p in sorted(args.suits.glob("*/*.mhclo"))]
+    if not suits and not args.no_suits:
         raise SystemExit(f"no .mhclo files under {args.suits}/*/: give --suits DIR (the CC0 MakeHuman suits)")
+    suits += args.garment
+    if not suits:
+        raise SystemExit("nothing to drape: give --garment SPEC with --no-suits")
     variants = [parse_variant(v) for v in (args.variant or ["default:"])]
     render_variant = args.render_variant or variants[-1][0]
     shapes = body_shapes(args.seed)
     draper = Draper(steps=args.steps)
     templates, info = {}, {}
     for path in suits:
-        t = draper.garment(str(path))
+        t = draper.garment(path)
         parts = garment_parts(t.verts, t.faces)
         exclude = parts.piece == parts.lower if parts.lower is not None else None
         overlaps = panel_overlaps(t.verts, t.faces, parts.piece, exclude=exclude)
@@ -273,13 +281,13 @@ def main(argv: list[str] | None = None) -> int:
             t, parts, overlaps = templates[path]
             canonical_band, canonical_height = {}, {}  # per pose, on the canonical body: band [cm], height [m]
             for pose in sorted({pose for _, _, pose in BODIES}):
-                [res] = draper.drape(str(path), shape=None, pose=pose, **kwargs)
+                [res] = draper.drape(path, shape=None, pose=pose, **kwargs)
                 band = skin_band(np.asarray(res.verts, np.float64), parts.hem, parts.waistband)
                 canonical_band[pose] = None if band is None else 100 * band
                 canonical_height[pose] = body_height(res.body_verts)
             for (label, _, pose), shape in zip(BODIES, shapes):
                 t0 = time.perf_counter()
-                [res] = draper.drape(str(path), shape=shape, pose=pose, **kwargs)
+                [res] = draper.drape(path, shape=shape, pose=pose, **kwargs)
                 row = {"suit": t.name, "body": label, "pose": pose, "drape_s": time.perf_counter() - t0}
                 row.update(measure(res, t, parts, overlaps))
                 row["band_canonical_cm"] = info[t.name]["band_canonical_cm"]

@@ -5,7 +5,7 @@ Example (the README snippet; `tests/api/test_api.py` runs it with a test model):
     import physdrape
 
     draper = physdrape.Draper()  # loads the bundled model once; Draper(device="cuda") runs it on a GPU
-    # garments: "default" (bundled T-shirt), "tshirt:7" (generated), "shirt.obj", "suit.mhclo", (verts, faces)
+    # garments: "default" (bundled T-shirt), "tshirt:7" / "trousers:2" / "outfit:5" (generated), "shirt.obj", "suit.mhclo", (verts, faces)
     [res] = draper.drape("default", shape={"weight": 0.8, "gender": 0.3}, pose="stand", material="denim")
     print(res.verts.shape, res.metrics["b2g_percent"], res.timings["total_s"])
     res.save("out/")  # garment.obj/.ply, body.obj/.ply, drape.glb
