@@ -36,11 +36,9 @@ import numpy as np
 from physdrape.garments.body_fields import BodyFields, body_fields
 from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.clipping import clip_mesh, fill_crease_holes
-from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.garments.remesh import remesh
-from physdrape.garments.shrink_wrap import shrink_wrap
+from physdrape.garments.shrink_wrap import body_vertex_under, wrap_patch
 from physdrape.garments.validate import GarmentError, validate_garment
-from physdrape.geometry.intersections import ray_hit_distances
 
 __all__ = [
     "GarmentCategory",
@@ -253,10 +251,7 @@ def generate_garment(
     # The offset stretches the sheet by a few per cent: aim the remesher a little short.
     v, fa = remesh(v, fa, target_edge=0.92 * target_edge)
     # Offsets per garment vertex from the nearest body vertex's arm-ness and height.
-    _, closest, _ = f.query(v)
-    from scipy.spatial import cKDTree
-
-    nn = cKDTree(body.verts).query(closest)[1]
+    nn = body_vertex_under(v, f, body)
     arm = np.clip(f.arm[nn], 0.0, 1.0)
     chest_y = float(f.shoulders[1.0][1]) - 0.1
     ramp = np.clip((chest_y - v[:, 1]) / max(chest_y - params.hem_height, 1e-3), 0.0, 1.0)
@@ -266,21 +261,11 @@ def generate_garment(
         + (1 - arm) * (params.looseness + params.flare * ramp**2 + params.width * lateral**2)
         + arm * params.sleeve_looseness
     )
-    # Never offset more than ~0.4 of the free space in front of the body (the gap to the next
-    # body part along the normal): arm and torso sheets then cannot cross under the armpit.
-    _, c, n = f.query(v)
-    gap = ray_hit_distances(body.verts, body.faces, c + 1e-4 * n, n, max_t=1.0)
-    offset = np.maximum(np.minimum(offset, 0.4 * gap), COLLISION_MARGIN + 1e-3)
-    if clearance_floor is not None:
-        offset = np.maximum(offset, clearance_floor(c))
+    # Smoothing strong on the torso (bridges the armpit), weak on the sleeves (it would only shrink
+    # and pleat their tubes); the sleeves are nearly final once offset along their normals.
     weight = np.clip(1.0 - arm, 0.0, 1.0) ** 2 * 0.9 + 0.1
-    # Start from the patch offset along its own normals (plus how deep the smoothed patch sank
-    # into the body): a smooth tube offset along its normals cannot fold, so the sleeves are
-    # nearly final here and the iterations below mostly shape the torso.
-    sink = np.clip(-f.query(v)[0], 0.0, None)
-    v = v + vertex_normals(v, fa) * (offset + sink)[:, None]
-    v = shrink_wrap(v, fa, offset, f, iterations=wrap_iterations, margin=COLLISION_MARGIN,
-                    smooth_weight=weight)
+    v = wrap_patch(v, fa, offset, f, body, iterations=wrap_iterations, margin=COLLISION_MARGIN, smooth_weight=weight,
+                   clearance_floor=clearance_floor)
     return GarmentTemplate(verts=v, faces=fa, params=params, name=f"{params.category.value}_{params.seed}")
 
 

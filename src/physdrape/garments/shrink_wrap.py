@@ -10,13 +10,46 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from physdrape.garments.body_fields import BodyFields, LegFields
+from physdrape.garments.canonical import CanonicalBody
 from physdrape.garments.numpy_geometry import vertex_normals
-from physdrape.geometry.intersections import self_intersecting_faces
+from physdrape.geometry.intersections import ray_hit_distances, self_intersecting_faces
 from physdrape.geometry.topology import boundary_edges, undirected_edges, vertex_adjacency
 
-__all__ = ["shrink_wrap"]
+__all__ = ["body_vertex_under", "shrink_wrap", "wrap_patch"]
+
+
+def body_vertex_under(x: np.ndarray, f: BodyFields | LegFields, body: CanonicalBody) -> np.ndarray:
+    """The body vertex nearest each point's closest body point (N,): where the per-vertex fields
+    (arm-ness, leg-ness, normals) are read for a garment vertex."""
+    _, closest, _ = f.query(x)
+    return cKDTree(body.verts).query(closest)[1]
+
+
+def wrap_patch(
+    x: np.ndarray, faces: np.ndarray, offset: np.ndarray, f: BodyFields | LegFields, body: CanonicalBody, *,
+    iterations: int, margin: float, smooth_weight: np.ndarray | None = None, clearance_floor=None,
+) -> np.ndarray:
+    """Move a patch cut from the (smoothed) body out to `offset` [m] per vertex and shrink-wrap it.
+
+    The offset is capped at 0.4 of the free space in front of the body (the gap along the body's
+    normal to the next body part: sheets over facing body parts, the arm and the torso under the
+    armpit, the inner thighs, then cannot cross), kept at least margin + 1 mm, and raised to
+    `clearance_floor(closest body points)` where one is given (`generate_garment`). The patch
+    starts offset along its own normals (plus how deep the smoothed patch sank into the body): a
+    smooth tube offset along its normals cannot fold, so tubes are nearly final there and the
+    sweeps of `shrink_wrap` mostly shape the rest.
+    """
+    _, c, n = f.query(x)
+    gap = ray_hit_distances(body.verts, body.faces, c + 1e-4 * n, n, max_t=1.0)
+    offset = np.maximum(np.minimum(offset, 0.4 * gap), margin + 1e-3)
+    if clearance_floor is not None:
+        offset = np.maximum(offset, clearance_floor(c))
+    sink = np.clip(-f.query(x)[0], 0.0, None)
+    x = x + vertex_normals(x, faces) * (offset + sink)[:, None]
+    return shrink_wrap(x, faces, offset, f, iterations=iterations, margin=margin, smooth_weight=smooth_weight)
 
 
 def shrink_wrap(

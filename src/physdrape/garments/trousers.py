@@ -24,16 +24,13 @@ import enum
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from physdrape.garments.body_fields import BodyFields, LegFields, body_fields, leg_fields
 from physdrape.garments.canonical import CanonicalBody, canonical_body
 from physdrape.garments.clipping import clip_mesh
 from physdrape.garments.generator import COLLISION_MARGIN, GarmentTemplate, first_valid_draw
-from physdrape.garments.numpy_geometry import vertex_normals
 from physdrape.garments.remesh import remesh
-from physdrape.garments.shrink_wrap import shrink_wrap
-from physdrape.geometry.intersections import ray_hit_distances
+from physdrape.garments.shrink_wrap import body_vertex_under, wrap_patch
 
 __all__ = ["TrousersKind", "TrousersParams", "sample_trousers_params", "trousers_coverage", "generate_trousers",
            "generate_valid_trousers"]
@@ -134,23 +131,15 @@ def generate_trousers(
     f, lf = body_fields(body), leg_fields(body)
     v, fa = clip_mesh(lf.smooth_verts, body.faces, trousers_coverage(params, f, lf, body.verts))
     v, fa = remesh(v, fa, target_edge=0.92 * target_edge)  # the offset stretches the sheet a little
-    _, closest, _ = f.query(v)
-    nn = cKDTree(body.verts).query(closest)[1]
+    nn = body_vertex_under(v, f, body)
     leg = np.clip(lf.leg[nn], 0.0, 1.0)
     down = np.clip(lf.t[nn] / params.leg_length, 0.0, 1.0)
     offset = (COLLISION_MARGIN + 1e-3 + (1 - leg) * params.looseness
               + leg * (params.leg_looseness + params.flare * down**2))
-    # Never more than ~0.4 of the free space in front of the body: the inner thighs face each
-    # other, and their sheets must not meet.
-    _, c, n = f.query(v)
-    gap = ray_hit_distances(body.verts, body.faces, c + 1e-4 * n, n, max_t=1.0)
-    offset = np.maximum(np.minimum(offset, 0.4 * gap), COLLISION_MARGIN + 1e-3)
-    sink = np.clip(-f.query(v)[0], 0.0, None)
-    v = v + vertex_normals(v, fa) * (offset + sink)[:, None]
     # Half-strength smoothing everywhere: enough to bridge the seat and the crotch, little enough
     # that the leg tubes keep their girth.
-    v = shrink_wrap(v, fa, offset, lf, iterations=wrap_iterations, margin=COLLISION_MARGIN,
-                    smooth_weight=np.full(len(v), 0.5))
+    v = wrap_patch(v, fa, offset, lf, body, iterations=wrap_iterations, margin=COLLISION_MARGIN,
+                   smooth_weight=np.full(len(v), 0.5))
     return GarmentTemplate(verts=v, faces=fa, params=params, name=f"{params.kind.value}_{params.seed}")
 
 
