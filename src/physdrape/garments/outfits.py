@@ -77,8 +77,10 @@ def _clearance_under(trousers: GarmentTemplate, body: CanonicalBody):
     tree = cKDTree(c)
 
     def floor(points: np.ndarray) -> np.ndarray:
-        near = tree.query_ball_point(points, _COVER_RADIUS)
-        return np.array([d[k].max() + LAYER_GAP if k else 0.0 for k in near])
+        near = cKDTree(points).sparse_distance_matrix(tree, _COVER_RADIUS, output_type="coo_matrix")
+        top = np.full(len(points), -np.inf)
+        np.maximum.at(top, near.row, d[near.col])
+        return np.where(np.isfinite(top), top + LAYER_GAP, 0.0)
 
     return floor
 
