@@ -6,7 +6,7 @@ normals; the armpit hollows and inner-elbow creases; landmarks (neck, shoulders)
 armpit sits where the garment parameters were designed for; a low-pass copy of the surface the
 garment patch is cut from; and distance queries against the real and the smoothed body.
 `LegFields` (trousers and shorts) the same for the legs: leg-ness, the coordinate along the
-hip→ankle axis, the crotch, and a low-pass copy that leaves both arms and legs nearly as they are.
+hip→ankle axis, and a low-pass copy that leaves both arms and legs nearly as they are.
 Positions y-up, metres, body facing +z.
 """
 
@@ -121,7 +121,6 @@ class LegFields:
         leg: smooth leg-ness (the skinning's 0/1 leg label diffused over the surface) (Vb,).
         t: distance along the hip→ankle axis of the vertex's side [m] (Vb,); 0 at the hip joint.
         side: sign of x (Vb,).
-        crotch: the lowest point of the leg/torso border near the body's axis [m] (3,).
         smooth_verts, smooth_query: a low-pass copy of the surface for the cut and the first
             shrink-wrap sweeps: the hips and the seat smoothed at full strength (the gluteal cleft
             filled), the legs and arms barely (smoothing shrinks a tube).
@@ -140,8 +139,6 @@ class LegFields:
             m = self.side == sgn
             t[m] = (v[m] - hip) @ (d / np.linalg.norm(d))
         self.t = t
-        border = (np.abs(self.leg - 0.5) < 0.2) & (np.abs(v[:, 0]) < 0.05)
-        self.crotch = v[border][np.argmin(v[border, 1])].copy()
         free = np.clip(1.0 - fields.arm, 0.0, 1.0) * np.clip(1.0 - self.leg, 0.0, 1.0)
         self.smooth_verts = _low_pass(v, walk, 0.5 * free**2)
         self.smooth_query = BodyDistance(self.smooth_verts, body.faces)
