@@ -7,16 +7,16 @@ what the CLI's `--category NAME --seed N` and a `NAME:N` garment spec drape.
 
 from __future__ import annotations
 
-from physdrape.garments.generator import generate_valid_garment
+from physdrape.garments.generator import GarmentCategory, generate_valid_garment
 from physdrape.garments.outfits import generate_valid_outfit
-from physdrape.garments.trousers import generate_valid_trousers
+from physdrape.garments.trousers import TrousersKind, generate_valid_trousers
 
 __all__ = ["TOPS", "LOWER", "OUTFIT", "CATEGORIES", "generate_valid"]
 
-#: The tops' categories (`generator.GarmentCategory`).
-TOPS = ("tshirt", "longsleeve", "tanktop", "croptop")
-#: The lower-body families (`trousers.TrousersKind`).
-LOWER = ("shorts", "capri", "trousers")
+#: The tops' categories.
+TOPS = tuple(c.value for c in GarmentCategory)
+#: The lower-body families.
+LOWER = tuple(k.value for k in TrousersKind)
 #: A top over trousers or shorts, one two-piece garment.
 OUTFIT = "outfit"
 CATEGORIES = TOPS + LOWER + (OUTFIT,)

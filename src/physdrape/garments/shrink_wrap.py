@@ -42,12 +42,12 @@ def wrap_patch(
     smooth tube offset along its normals cannot fold, so tubes are nearly final there and the
     sweeps of `shrink_wrap` mostly shape the rest.
     """
-    _, c, n = f.query(x)
+    d, c, n = f.query(x)
     gap = ray_hit_distances(body.verts, body.faces, c + 1e-4 * n, n, max_t=1.0)
     offset = np.maximum(np.minimum(offset, 0.4 * gap), margin + 1e-3)
     if clearance_floor is not None:
         offset = np.maximum(offset, clearance_floor(c))
-    sink = np.clip(-f.query(x)[0], 0.0, None)
+    sink = np.clip(-d, 0.0, None)
     x = x + vertex_normals(x, faces) * (offset + sink)[:, None]
     return shrink_wrap(x, faces, offset, f, iterations=iterations, margin=margin, smooth_weight=smooth_weight)
 
