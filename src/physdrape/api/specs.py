@@ -15,7 +15,8 @@ from torch import Tensor
 
 from physdrape.api.placement import check_extent, unit_scale
 from physdrape.api.types import DrapeError, Motion
-from physdrape.garments.catalogue import CATEGORIES, generate_valid
+from physdrape.garments.catalogue import CATEGORIES
+from physdrape.garments.generated_cache import generated_garment
 from physdrape.geometry.mesh import MeshError, check_mesh
 from physdrape.physics.material import Material
 from physdrape.physics.presets import MATERIAL_PRESETS, material_preset
@@ -95,8 +96,7 @@ def _template_from_text(text: str, *, smpl: bool, units: str) -> Template:
             return template_from_mesh("tshirt_default", *_mesh(default_garment()))
         if _GENERATED.match(text):
             category, seed = text.split(":")
-            g, _ = generate_valid(category, int(seed))
-            return template_from_mesh(g.name, *_mesh(g))
+            return template_from_mesh(*generated_garment(category, int(seed)))
         path = Path(text).expanduser()
         if not path.is_file():
             raise DrapeError(f"garment {text!r}: no such file, and not 'default' or CATEGORY:SEED with CATEGORY in "

@@ -33,6 +33,7 @@ from torch import Tensor
 
 from physdrape.atomic import atomic_path, write_text
 from physdrape.progress import directory_size, slow_phase
+from physdrape.user_cache import cache_root
 
 __all__ = ["ANNY_TO_YUP", "RIGS", "AnnyData", "cache_dir", "load_anny_data", "phenotype_coefficients"]
 
@@ -80,7 +81,7 @@ def _anny_version() -> str:
 
 def cache_dir() -> Path:
     """Where `load_anny_data` keeps its files: ~/.cache/physdrape/anny_body/anny-<installed version>."""
-    return Path.home() / ".cache" / "physdrape" / "anny_body" / f"anny-{_anny_version()}"
+    return cache_root() / "anny_body" / f"anny-{_anny_version()}"
 
 
 _LOCK = threading.Lock()

@@ -6,11 +6,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from physdrape.pipeline import DEFAULT_DTYPE
+from physdrape.user_cache import cache_root
 
 
 def default_reference_cache() -> Path:
     """Where the oracle's results are cached by default: ~/.cache/physdrape/eval_reference."""
-    return Path.home() / ".cache" / "physdrape" / "eval_reference"
+    return cache_root() / "eval_reference"
 
 
 def reference_cache_dir(config: EvalConfig) -> Path | None:

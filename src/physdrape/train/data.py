@@ -31,6 +31,7 @@ from physdrape.physics import Material
 from physdrape.pipeline import DrapePipeline, PosedBodies, Template
 from physdrape.train.instances import InstanceCache, InstanceCacheError, part_pool
 from physdrape.train.materials import draw_material
+from physdrape.user_cache import cache_root
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ def held_per_instance(held: dict[int, torch.Tensor], sample: TrainingBatch,
 def default_split_dir(seed: int = 0) -> Path:
     """Where the generated garment split is cached: ~/.cache/physdrape/garment_split_seed<seed>_v<format>."""
     version = SPLIT_FORMAT.rsplit("/", 1)[-1]
-    return Path.home() / ".cache" / "physdrape" / f"garment_split_seed{seed}_v{version}"
+    return cache_root() / f"garment_split_seed{seed}_v{version}"
 
 
 @dataclass(frozen=True)
