@@ -1,4 +1,5 @@
-"""Writing drape results: OBJ / PLY (via `geometry.mesh.write_mesh`) and GLB scenes, each file atomic."""
+"""Writing drape results: OBJ / PLY (via `geometry.mesh.write_mesh`) and GLB scenes (glTF 2.0, written here:
+no mesh library is imported to save a drape), each file atomic."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from physdrape.atomic import write_bytes
 from physdrape.geometry.mesh import MeshError, write_mesh
 
-__all__ = ["FORMATS", "result_files", "save_result", "to_trimesh", "write_glb", "write_json"]
+__all__ = ["FORMATS", "glb_bytes", "result_files", "save_result", "to_trimesh", "write_glb", "write_json"]
 
 #: Mesh formats `save_result` writes.
 FORMATS = ("obj", "ply", "glb")
@@ -43,10 +44,53 @@ def to_trimesh(result, *, with_body: bool = False):
     return scene
 
 
+def glb_bytes(meshes: Sequence[tuple[str, np.ndarray, np.ndarray, Sequence[int]]]) -> bytes:
+    """One binary glTF 2.0 scene of triangle meshes, each (name, verts (V, 3) [m], faces (F, 3),
+    RGBA 0-255) a node of its own with float32 positions, area-weighted vertex normals, uint32
+    indices and a double-sided material of that colour (garments are open sheets)."""
+    import struct
+
+    from physdrape.garments.numpy_geometry import vertex_normals
+
+    blob, views, accessors, gltf_meshes, materials, nodes = bytearray(), [], [], [], [], []
+
+    def add(array: np.ndarray, target: int, component: int, kind: str, bounds: bool = False) -> int:
+        data = array.tobytes()
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data), "target": target})
+        blob.extend(data + b"\0" * (-len(data) % 4))
+        accessor = {"bufferView": len(views) - 1, "componentType": component, "count": len(array), "type": kind}
+        if bounds:
+            accessor.update(min=array.min(0).tolist(), max=array.max(0).tolist())
+        accessors.append(accessor)
+        return len(accessors) - 1
+
+    for k, (name, verts, faces, rgba) in enumerate(meshes):
+        verts, faces = np.asarray(verts, np.float64), np.asarray(faces, np.int64)
+        if not len(verts) or not len(faces):
+            raise MeshError(f"cannot write {name!r} to a glTF scene: it has no vertices or no faces")
+        position = add(verts.astype("<f4"), 34962, 5126, "VEC3", bounds=True)
+        normal = add(vertex_normals(verts, faces).astype("<f4"), 34962, 5126, "VEC3")
+        indices = add(faces.astype("<u4").ravel(), 34963, 5125, "SCALAR")
+        materials.append({"name": name, "doubleSided": True, "pbrMetallicRoughness": {
+            "baseColorFactor": [c / 255.0 for c in rgba], "metallicFactor": 0.0, "roughnessFactor": 0.9}})
+        gltf_meshes.append({"name": name, "primitives": [{"attributes": {"POSITION": position, "NORMAL": normal},
+                                                           "indices": indices, "material": k, "mode": 4}]})
+        nodes.append({"name": name, "mesh": k})
+    gltf = {"asset": {"version": "2.0", "generator": "physdrape"}, "scene": 0,
+            "scenes": [{"nodes": list(range(len(nodes)))}], "nodes": nodes, "meshes": gltf_meshes,
+            "materials": materials, "accessors": accessors, "bufferViews": views,
+            "buffers": [{"byteLength": len(blob)}]}
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(chunks)) + chunks
+
+
 def write_glb(path: str | os.PathLike, result) -> Path:
     """One binary glTF scene holding the body and the garment (y-up metres, glTF's convention)."""
     path = Path(path)
-    write_bytes(path, to_trimesh(result, with_body=True).export(file_type="glb"))
+    write_bytes(path, glb_bytes([("body", result.body_verts, result.body_faces, BODY_RGBA),
+                                 ("garment", result.verts, result.faces, GARMENT_RGBA)]))
     return path
 
 

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from physdrape.atomic import write_bytes
 from physdrape.garments.generator import GarmentTemplate
 from physdrape.garments.validate import validate_garment
-from physdrape.geometry.mesh import MeshError, read_mesh
+from physdrape.geometry.mesh import MeshError, ply_bytes, read_mesh
 
 __all__ = ["load_template", "write_ply", "read_ply", "sha256_file", "default_garment"]
 
@@ -44,25 +45,9 @@ def load_template(path: str | os.PathLike, *, validate: bool = True, body=None) 
 
 def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray) -> str:
     """Write a binary little-endian PLY (float64 vertices, int32 triangles) byte-for-byte
-    deterministically (no timestamps, fixed header); returns its sha256."""
-    verts = np.ascontiguousarray(verts, dtype="<f8")
-    faces = np.asarray(faces, dtype=np.int64)
-    if faces.size and (faces.min() < 0 or faces.max() >= len(verts)):
-        raise MeshError(f"{path}: face indices out of range [0, {len(verts)})")
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {len(verts)}\nproperty double x\nproperty double y\nproperty double z\n"
-        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
-    ).encode("ascii")
-    rec = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    rec["n"] = 3
-    rec["i"] = faces
-    data = header + verts.tobytes() + rec.tobytes()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    deterministically (`geometry.mesh.ply_bytes`), atomically; returns its sha256."""
+    data = ply_bytes(verts, faces, name=str(path))
+    write_bytes(path, data)
     return hashlib.sha256(data).hexdigest()
 
 

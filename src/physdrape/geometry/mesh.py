@@ -90,8 +90,26 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     return verts, faces
 
 
+def ply_bytes(verts: np.ndarray, faces: np.ndarray, *, name: str = "mesh") -> bytes:
+    """A binary little-endian PLY of a triangle mesh (float64 vertices, int32 corner indices),
+    the same bytes for the same arrays (a fixed header, no timestamps)."""
+    verts = np.ascontiguousarray(verts, dtype="<f8")
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(verts)):
+        raise MeshError(f"{name}: face indices out of range [0, {len(verts)})")
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {len(verts)}\nproperty double x\nproperty double y\nproperty double z\n"
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).encode("ascii")
+    rec = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    rec["n"] = 3
+    rec["i"] = faces
+    return header + verts.tobytes() + rec.tobytes()
+
+
 def write_mesh(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray) -> None:
-    """Write an OBJ or PLY atomically (a temporary file renamed into place)."""
+    """Write an OBJ or a binary PLY (`ply_bytes`) atomically (a temporary file renamed into place)."""
     path = Path(path)
     suffix = path.suffix.lower()
     verts = np.asarray(verts, dtype=np.float64)
@@ -101,9 +119,7 @@ def write_mesh(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray) ->
         lines += [f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces]
         write_bytes(path, "".join(lines).encode())
     elif suffix == ".ply":
-        import trimesh
-
-        write_bytes(path, trimesh.Trimesh(verts, faces, process=False).export(file_type="ply"))
+        write_bytes(path, ply_bytes(verts, faces, name=str(path)))
     else:
         raise MeshError(f"unsupported mesh format {suffix!r} for {path}: use .obj or .ply")
 

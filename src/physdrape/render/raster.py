@@ -169,22 +169,25 @@ def render_view(meshes: Sequence[dict], *, yaw_deg: float = 0.0, size: int = 512
     height = size * supersample
     screen = np.stack([(v[:, 0] - x0) * scale, (y1 - v[:, 1]) * scale, -v[:, 2]], 1)
     face_id, bary = rasterise(screen, f, height, width)
-    hit = face_id >= 0
-    fid = face_id[hit]
+    hit = np.flatnonzero(face_id >= 0)
+    fid = face_id.ravel()[hit]
     tri = f[fid]
-    w = bary[hit][:, :, None]
-    n = (nrm[tri] * w).sum(1)
+    w = bary.reshape(-1, 3)[hit]
+    n = np.einsum("pk,pkc->pc", w, nrm[tri])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    c = (col[tri] * w).sum(1)
+    c = np.einsum("pk,pkc->pc", w, col[tri])
     override = ~np.isnan(fcol[fid, 0])
     c[override] = fcol[fid[override]]
     light = np.array([0.3, 0.4, 1.0])
     light /= np.linalg.norm(light)
     lambert = np.abs(n @ light)  # two-sided: garments are open sheets
     shade = 0.35 + 0.65 * lambert
-    img = np.tile(BACKGROUND_RGB, (height * width, 1)).reshape(height, width, 3)
+    img = np.empty((height * width, 3))
+    img[:] = BACKGROUND_RGB
     img[hit] = np.clip(c * shade[:, None], 0, 1)
-    if supersample > 1:
+    img = img.reshape(height, width, 3)
+    if supersample > 1:  # the mean of each block of supersample × supersample pixels
         h2, w2 = height // supersample, width // supersample
-        img = img[: h2 * supersample, : w2 * supersample].reshape(h2, supersample, w2, supersample, 3).mean((1, 3))
+        img = sum(img[i: h2 * supersample: supersample, j: w2 * supersample: supersample]
+                  for i in range(supersample) for j in range(supersample)) / supersample ** 2
     return img
