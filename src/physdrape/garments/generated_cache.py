@@ -72,4 +72,4 @@ def generated_garment(category: str, seed: int, *, root: Path | None = None) -> 
                 shutil.rmtree(other, ignore_errors=True)
     except OSError:
         pass  # no writable cache: the garment is generated again next time
-    return garment.name, garment.verts, garment.faces
+    return name, garment.verts, garment.faces
