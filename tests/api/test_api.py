@@ -24,7 +24,8 @@ def test_drape_returns_documented_shapes_and_dtypes(draper, anny_body):
     assert res.x_init.shape == (v, 3) and res.faces.dtype == np.int64 and res.faces.shape[1] == 3
     assert res.body_verts.shape == (anny_body.num_verts, 3) and res.body_faces.shape == (anny_body.num_faces, 3)
     assert res.vertex_residual.shape == (v,) and res.inside_faces.shape == (len(res.faces),)
-    assert set(res.metrics) == {"strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative"}
+    assert set(res.metrics) == {"strain", "bend", "b2g_percent", "close_percent", "residual_force", "residual_relative",
+                                "piece_crossings"} and res.metrics["piece_crossings"] == 0
     assert all(np.isfinite(x) for x in res.metrics.values())
     assert {"body_s", "init_s", "model_s", "total_s", "per_garment_s"} <= set(res.timings)
     assert np.isfinite(res.verts).all() and not np.allclose(res.verts, res.x_init)

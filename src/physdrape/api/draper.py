@@ -29,7 +29,7 @@ from physdrape.api import placement, sequences, specs
 from physdrape.api.batch_threads import drape_groups, thread_groups
 from physdrape.api.convergence import solver_convergence
 from physdrape.api.specs import BodyPose
-from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
+from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion, crossings_warned
 from physdrape.api.wear import Wear, Wearing
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
@@ -468,17 +468,19 @@ class Draper:
         found = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside, bound=bound)
         metrics, residual = found.as_dict(), batch.split(found.vertex_residual[:, None])
         inside = torch.split(inside, [int(n) for n in torch.bincount(batch.face_garment, minlength=len(jobs))])
-        xs, inits, body_faces = batch.split(x), batch.split(inp.x_init), state.faces.cpu().numpy().astype(np.int64)
+        inits, body_faces = batch.split(inp.x_init), state.faces.cpu().numpy().astype(np.int64)
+        xs = [v.cpu().numpy() for v in batch.split(x)]
+        crossings = crossings_warned([j.template.name for j in jobs], xs, [j.template.faces for j in jobs])
         return [DrapeResult(
             name=job.template.name,
-            verts=xs[k].cpu().numpy(),
+            verts=xs[k],
             faces=job.template.faces,
             body_verts=state.verts[body_of[k]].to(self.dtype).cpu().numpy(),
             body_faces=body_faces,
             x_init=inits[k].cpu().numpy(),
             material=job.material,
             pose=job.pose.label,
-            metrics={name: float(values[k]) for name, values in metrics.items()},
+            metrics={**{name: float(values[k]) for name, values in metrics.items()}, "piece_crossings": crossings[k]},
             timings={},
             vertex_residual=residual[k][:, 0].cpu().numpy(),
             inside_faces=inside[k].cpu().numpy().astype(bool),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -9,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from physdrape.geometry.intersections import piece_crossings
 from physdrape.physics.material import Material
 
 
@@ -18,6 +20,20 @@ class DrapeError(ValueError):
 
 class DrapeWarning(UserWarning):
     """Input the API drapes as asked although it is likely wrong (e.g. ``allow_detached=True``)."""
+
+
+def crossings_warned(names: list[str], verts: list[np.ndarray], faces: list[np.ndarray]) -> list[int]:
+    """Each drape's intersecting face pairs of two different pieces
+    (`geometry.intersections.piece_crossings`: one piece passed through another), with a
+    `DrapeWarning` for each drape that has any."""
+    crossings = [piece_crossings(v, f) for v, f in zip(verts, faces)]
+    for name, n in zip(names, crossings):
+        if n:
+            warnings.warn(f"{name}: {n} face pair(s) of two of its pieces intersect after the drape (one piece "
+                          "passed through another); drape with more steps (--steps) or polish it with the oracle "
+                          "(--refine), keeping the pieces' layer order (--layers auto, the default)",
+                          DrapeWarning, stacklevel=4)
+    return crossings
 
 
 @dataclass(frozen=True)
@@ -66,7 +82,8 @@ class DrapeResult:
         x_init: kinematic initialisation X_init [m], shape (V, 3).
         material: the fabric draped; pose: a label of the body pose.
         metrics: E_strain, E_bend [J, default material], B2G [%], close [%], residual force [N]
-            and relative residual [per vertex weight] (see `physdrape.physics.metrics`).
+            and relative residual [per vertex weight] (see `physdrape.physics.metrics`), and the
+            face pairs of two different pieces that intersect ("piece_crossings"; 0 for one piece).
         timings: wall seconds of the batch this garment was draped in (of its thread's group
             where a batch was split between threads), per phase, and ``batch_size``;
             ``per_garment_s`` = total / batch size.
@@ -126,6 +143,7 @@ class DrapeResult:
             "E_bend_J": self.metrics["bend"],
             "B2G_percent": self.metrics["b2g_percent"],
             "close_percent": self.metrics["close_percent"],
+            "piece_crossings": int(self.metrics.get("piece_crossings", 0)),
             "residual_force_N": self.metrics["residual_force"],
             "residual_relative": self.metrics["residual_relative"],
             "init": self.init,
