@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -48,9 +49,7 @@ def glb_bytes(meshes: Sequence[tuple[str, np.ndarray, np.ndarray, Sequence[int]]
     """One binary glTF 2.0 scene of triangle meshes, each (name, verts (V, 3) [m], faces (F, 3),
     RGBA 0-255) a node of its own with float32 positions, area-weighted vertex normals, uint32
     indices and a double-sided material of that colour (garments are open sheets)."""
-    import struct
-
-    from physdrape.garments.numpy_geometry import vertex_normals
+    from physdrape.garments.numpy_geometry import vertex_normals  # imports torch: only when a scene is written
 
     blob, views, accessors, gltf_meshes, materials, nodes = bytearray(), [], [], [], [], []
 
