@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from physdrape.api import Draper
-from physdrape.api.types import DrapeWarning, crossings_warned
+from physdrape.api.results import crossings_warned
+from physdrape.api.types import DrapeWarning
 from physdrape.geometry.primitives import grid_sheet
 
 

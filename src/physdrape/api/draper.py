@@ -28,16 +28,15 @@ from physdrape import checkpoint as ckpt
 from physdrape.api import placement, sequences, specs
 from physdrape.api.batch_threads import drape_groups, thread_groups
 from physdrape.api.convergence import solver_convergence
+from physdrape.api.results import drape_results
 from physdrape.api.specs import BodyPose
-from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion, crossings_warned
+from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
 from physdrape.api.wear import Wear, Wearing
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
-from physdrape.geometry.distance_bound import DistanceBound
 from physdrape.geometry.proximity import BodySurface
 from physdrape.physics import Cloth, relax
-from physdrape.physics.metrics import drape_metrics, faces_inside
 from physdrape.pipeline import DEFAULT_DTYPE, POSE_DTYPE, TEMPLATES_KEPT, DrapePipeline, PosedBodies, Template, select
 from physdrape.progress import iteration_progress, progress_bar
 from physdrape.tensor_memo import KeyedMemo
@@ -448,7 +447,8 @@ class Draper:
                         margin=self.model_config.margin, callback=iteration_progress("oracle polish (refine)"))
             x = res.x.to(device=self.device, dtype=self.dtype)
         t4 = time.perf_counter()
-        results = self._results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm, out.bound)
+        results = drape_results(jobs, [pj.body for pj in pipeline_jobs], inp, x, state, convergence, warm, out.bound,
+                                dtype=self.dtype)
         t5 = time.perf_counter()
         timings = {"body_s": t1 - t0, "init_s": t2 - t1, "model_s": t3 - t2, "trace_s": t3b - t3, "refine_s": t4 - t3b,
                    "metrics_s": t5 - t4, "total_s": t5 - t0, "batch_size": float(len(jobs))}
@@ -459,34 +459,6 @@ class Draper:
         nxt = [None if t is None else _Warm(xs[k].to(device=t.device, dtype=POSE_DTYPE), t)
                for k, t in enumerate(following)]
         return results, nxt
-
-    def _results(self, jobs: list[_Job], body_of: list[int], inp, x: Tensor, state: BodyState, convergence,
-                 warm, bound: DistanceBound | None) -> list[DrapeResult]:
-        """One `DrapeResult` per job (timings filled in by the caller; `bound`: the model's, or None)."""
-        batch, cloth, bodies = inp.garments, inp.cloth, inp.bodies
-        inside = faces_inside(x, batch, bodies, inp.body_index, bound=bound)
-        found = drape_metrics(x, batch, bodies, inp.body_index, cloth=cloth, inside_faces=inside, bound=bound)
-        metrics, residual = found.as_dict(), batch.split(found.vertex_residual[:, None])
-        inside = torch.split(inside, [int(n) for n in torch.bincount(batch.face_garment, minlength=len(jobs))])
-        inits, body_faces = batch.split(inp.x_init), state.faces.cpu().numpy().astype(np.int64)
-        xs = [v.cpu().numpy() for v in batch.split(x)]
-        crossings = crossings_warned([j.template.name for j in jobs], xs, [j.template.faces for j in jobs])
-        return [DrapeResult(
-            name=job.template.name,
-            verts=xs[k],
-            faces=job.template.faces,
-            body_verts=state.verts[body_of[k]].to(self.dtype).cpu().numpy(),
-            body_faces=body_faces,
-            x_init=inits[k].cpu().numpy(),
-            material=job.material,
-            pose=job.pose.label,
-            metrics={**{name: float(values[k]) for name, values in metrics.items()}, "piece_crossings": crossings[k]},
-            timings={},
-            vertex_residual=residual[k][:, 0].cpu().numpy(),
-            inside_faces=inside[k].cpu().numpy().astype(bool),
-            convergence=convergence[k],
-            init="warm" if warm is not None and warm[k] is not None else "skinning",
-        ) for k, job in enumerate(jobs)]
 
 
 _DEFAULT_DRAPER: Draper | None = None

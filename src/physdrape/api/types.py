@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,7 +9,6 @@ from typing import Any
 
 import numpy as np
 
-from physdrape.geometry.intersections import piece_crossings
 from physdrape.physics.material import Material
 
 
@@ -20,20 +18,6 @@ class DrapeError(ValueError):
 
 class DrapeWarning(UserWarning):
     """Input the API drapes as asked although it is likely wrong (e.g. ``allow_detached=True``)."""
-
-
-def crossings_warned(names: list[str], verts: list[np.ndarray], faces: list[np.ndarray]) -> list[int]:
-    """Each drape's intersecting face pairs of two different pieces
-    (`geometry.intersections.piece_crossings`: one piece passed through another), with a
-    `DrapeWarning` for each drape that has any."""
-    crossings = [piece_crossings(v, f) for v, f in zip(verts, faces)]
-    for name, n in zip(names, crossings):
-        if n:
-            warnings.warn(f"{name}: {n} face pair(s) of two of its pieces intersect after the drape (one piece "
-                          "passed through another); drape with more steps (--steps) or polish it with the oracle "
-                          "(--refine), keeping the pieces' layer order (--layers auto, the default)",
-                          DrapeWarning, stacklevel=4)
-    return crossings
 
 
 @dataclass(frozen=True)
