@@ -177,3 +177,20 @@ def test_init_from_a_shallower_checkpoint_keeps_the_added_mesh_blocks_at_the_ide
                      optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
     with pytest.raises(ckpt.CheckpointError, match="does not fit this run's model"):
         trainer(tmp_path / "longer", longer).init_weights(tmp_path / "base")
+
+
+def test_init_from_a_checkpoint_without_summaries_keeps_them_at_zero(tmp_path):
+    """model.global_context on top of a checkpoint without it: its weights, and the garments'
+    summaries as they start (silent), so the fine-tune starts from the checkpoint's drape."""
+    from dataclasses import replace
+
+    trainer(tmp_path / "base").run()
+    base, _ = ckpt.read_checkpoint(tmp_path / "base")
+    summarised = replace(TINY, model=replace(TINY.model, global_context=True),
+                         optim=replace(TINY.optim, steps=1, init_from=str(tmp_path / "base")))
+    tuned = trainer(tmp_path / "tuned", summarised)
+    fresh = {k: v.clone() for k, v in tuned.model.state_dict().items()}
+    tuned.init_weights(tmp_path / "base")
+    for name, value in tuned.model.state_dict().items():
+        assert torch.equal(value, fresh[name] if name.startswith("gnn.global_mlps.") else base[name]), name
+    assert any(k.startswith("gnn.global_mlps.") for k in fresh)

@@ -46,6 +46,9 @@ class ModelConfig:
     mesh_blocks: processor blocks on the mesh graph after the V-cycles, before the decoder, each
     starting as the identity (`EncodeProcessDecode`): more local work per pass, addable to a
     trained network (`optim.init_from` keeps them at their start).
+    global_context: after each processor block every vertex also gets its garment's summary (an
+    MLP of the mean of the garment's latents, `EncodeProcessDecode`): garment-wide information
+    in every block; the summaries start at zero, addable to a trained network likewise.
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
     solver: "two_level" (conjugate directions, block Jacobi plus a coarse correction on smooth
@@ -152,6 +155,7 @@ class ModelConfig:
     latent: int = 64
     blocks: int = 8
     mesh_blocks: int = 0
+    global_context: bool = False
     mlp_layers: int = 2
     levels: int = 0
     zero_init_output: bool = False

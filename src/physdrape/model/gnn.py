@@ -103,13 +103,18 @@ class EncodeProcessDecode(nn.Module):
         look_back_in, look_back_blocks: the look-back stage's feature width and its blocks (an
             odd number, a V-cycle over (look_back_blocks − 1) / 2 levels at most `levels`; 0:
             no stage). Its decoder starts at zero: the stage adds nothing until trained.
+        global_context: after each processor block every node's latent also gets its garment's
+            summary, an MLP of the mean of the garment's node latents (one MLP per block): what
+            the whole garment does reaches every vertex at once, beyond the V-cycles' reach. Each
+            MLP's last layer starts at zero, so that the summaries can be added to a trained
+            network without changing its output.
     Forward: nodes (N, node_in), edges (E', edge_in) of all levels in `graph.edge_index`'s order,
     graph (`GraphLevels` with at least `levels` coarse levels) → (N, out).
     """
 
     def __init__(self, node_in: int, edge_in: int, out: int, *, latent: int, blocks: int, mlp_layers: int = 2,
                  levels: int = 0, zero_init_output: bool = False, look_back_in: int = 0,
-                 look_back_blocks: int = 0, mesh_blocks: int = 0) -> None:
+                 look_back_blocks: int = 0, mesh_blocks: int = 0, global_context: bool = False) -> None:
         super().__init__()
         self.schedule = level_schedule(blocks, levels) + [0] * mesh_blocks
         self.node_encoder = mlp(node_in, latent, latent, layers=mlp_layers)
@@ -119,6 +124,11 @@ class EncodeProcessDecode(nn.Module):
             for last in (block.edge_mlp[-2], block.node_mlp[-2]):
                 nn.init.zeros_(last.weight)
                 nn.init.zeros_(last.bias)
+        self.global_mlps = (nn.ModuleList(mlp(latent, latent, latent, layers=mlp_layers, layer_norm=False)
+                                          for _ in self.schedule) if global_context else None)
+        for summary in self.global_mlps or ():  # no summary at the start: h += 0
+            nn.init.zeros_(summary[-1].weight)
+            nn.init.zeros_(summary[-1].bias)
         self.decoder = mlp(latent, latent, out, layers=mlp_layers, layer_norm=False)
         if zero_init_output:  # the untrained network outputs 0: training starts from its input state
             nn.init.zeros_(self.decoder[-1].weight)
@@ -147,53 +157,66 @@ class EncodeProcessDecode(nn.Module):
         self._compiled = torch.compile(self._encoded_and_processed, dynamic=True)
         self._compile_pending = {False, True}
 
-    def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None = None) -> Tensor:
+    def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None = None,
+                garments: Tensor | None = None) -> Tensor:
         """parts: vertex bounds [0, b₁, …, N] of pieces no edge crosses (whole garments of a
         batch), processed one after the other: the same output, with each piece's latents small
         enough to stay in the CPU's caches (a batch of garments as one graph runs about half as
-        fast per garment on one thread). None: the graph in one piece."""
-        outs = [self.decoder(h) for h, _, _ in self._processed(nodes, edges, graph, parts)]
+        fast per garment on one thread). None: the graph in one piece. garments: each node's
+        garment (N,) int64, ascending, for the garments' summaries (`global_context`); None: one
+        garment."""
+        outs = [self.decoder(h) for h, _, _ in self._processed(nodes, edges, graph, parts, garments)]
         return outs[0] if len(outs) == 1 else torch.cat(outs)
 
     def forward_looking_back(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,
-                             look_back: Callable[[Tensor], Tensor],
-                             parts: list[int] | None = None) -> tuple[Tensor, Tensor]:
+                             look_back: Callable[[Tensor], Tensor], parts: list[int] | None = None,
+                             garments: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """The network's output before and after its look-back stage, each (N, out): the blocks'
         output y₁ as `forward` makes it; then `look_back`(y₁) → (N, look_back_in) features read
         where y₁ moves the garment (the caller's physics, normalised), encoded and added to the
         latents, the look-back blocks on the mesh and coarse edges' latents as the blocks left
-        them, and y₁ + the look-back decoder's output. parts: as `forward` (the look-back reads
-        the whole batch at once, between the two stages)."""
+        them, and y₁ + the look-back decoder's output. parts, garments: as `forward` (the
+        look-back reads the whole batch at once, between the two stages; its blocks take no
+        summaries)."""
         if not self.look_back_schedule:
             raise ValueError("this network has no look-back stage (ModelConfig.look_back_blocks = 0)")
-        pieces = list(self._processed(nodes, edges, graph, parts))
+        pieces = list(self._processed(nodes, edges, graph, parts, garments))
         first = [self.decoder(h) for h, _, _ in pieces]
         first_out = torch.cat(first)
         features = torch.split(look_back(first_out), [len(y) for y in first])
         second = []
         for (h, e, sub), extra in zip(pieces, features):
             h = h + self.look_back_encoder(extra)
-            h, _ = self._blocks(self.look_back_blocks, self.look_back_schedule, h, e, sub)
+            h, _ = self._blocks(self.look_back_blocks, self.look_back_schedule, h, e, sub, None)
             second.append(self.look_back_decoder(h))
         return first_out, first_out + torch.cat(second)
 
-    def _processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,
-                   parts: list[int] | None) -> Iterator[tuple[Tensor, list[Tensor], GraphLevels]]:
+    def _processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None,
+                   garments: Tensor | None) -> Iterator[tuple[Tensor, list[Tensor], GraphLevels]]:
         """Per piece (`forward`'s parts), one after the other, its node latents, its edge latents
         per level and its graph after the encoders and the processor blocks (a generator: a
         caller that decodes each piece as it comes holds one piece's latents at a time)."""
         run = self._encoded_and_processed if self._compiled is None else self._run_compiled
         if parts is None or len(parts) <= 2:
-            yield run(nodes, edges, graph)
+            yield run(nodes, edges, graph, *self._summary_groups(garments, 0, len(nodes)))
             return
         per_level = torch.split(edges, graph.edge_counts)
         for start, stop in itertools.pairwise(parts):
             sub, chosen = graph.part(start, stop)
             piece_edges = torch.cat([e[k] for e, k in zip(per_level, chosen)])
-            yield run(nodes[start:stop], piece_edges, sub)
+            yield run(nodes[start:stop], piece_edges, sub, *self._summary_groups(garments, start, stop))
 
-    def _run_compiled(self, nodes: Tensor, edges: Tensor,
-                      graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
+    def _summary_groups(self, garments: Tensor | None, start: int, stop: int) -> tuple[Tensor | None, int]:
+        """The nodes start…stop's garment numbers from 0 (None: no summaries, or one garment) and
+        how many garments they hold."""
+        if self.global_mlps is None or garments is None:
+            return None, 1
+        group = garments[start:stop]
+        group = group - group[:1]
+        return group, int(group[-1]) + 1 if len(group) else 1
+
+    def _run_compiled(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, group: Tensor | None = None,
+                      count: int = 1) -> tuple[Tensor, list[Tensor], GraphLevels]:
         """`_encoded_and_processed` compiled (`compile_network`); the first call in each grad mode
         compiles, one thread at a time, and falls back to eager for good where compiling fails."""
         mode = torch.is_grad_enabled()
@@ -201,36 +224,51 @@ class EncodeProcessDecode(nn.Module):
             with _COMPILE_LOCK:
                 if self._compiled is not None and mode in self._compile_pending:
                     try:
-                        out = self._compiled(nodes, edges, graph)
+                        out = self._compiled(nodes, edges, graph, group, count)
                     except Exception as exc:  # noqa: BLE001 - any backend failure: run eagerly instead
                         warnings.warn(f"torch.compile could not compile the network ({type(exc).__name__}: "
                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); it runs eagerly", stacklevel=2)
                         self._compiled = None
-                        out = self._encoded_and_processed(nodes, edges, graph)
+                        out = self._encoded_and_processed(nodes, edges, graph, group, count)
                     self._compile_pending.discard(mode)
                     return out
         if self._compiled is None:
-            return self._encoded_and_processed(nodes, edges, graph)
-        return self._compiled(nodes, edges, graph)
+            return self._encoded_and_processed(nodes, edges, graph, group, count)
+        return self._compiled(nodes, edges, graph, group, count)
 
-    def _encoded_and_processed(self, nodes: Tensor, edges: Tensor,
-                               graph: GraphLevels) -> tuple[Tensor, list[Tensor], GraphLevels]:
+    def _encoded_and_processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, group: Tensor | None = None,
+                               count: int = 1) -> tuple[Tensor, list[Tensor], GraphLevels]:
         h = self.node_encoder(nodes)
         e = list(torch.split(self.edge_encoder(edges), graph.edge_counts))
-        h, e = self._blocks(self.blocks, self.schedule, h, e, graph)
+        summaries = None if self.global_mlps is None else (self.global_mlps, group, count)
+        h, e = self._blocks(self.blocks, self.schedule, h, e, graph, summaries)
         return h, e, graph
 
     @staticmethod
-    def _blocks(blocks: nn.ModuleList, schedule: list[int], h: Tensor, e: list[Tensor],
-                graph: GraphLevels) -> tuple[Tensor, list[Tensor]]:
+    def _blocks(blocks: nn.ModuleList, schedule: list[int], h: Tensor, e: list[Tensor], graph: GraphLevels,
+                summaries: tuple[nn.ModuleList, Tensor | None, int] | None) -> tuple[Tensor, list[Tensor]]:
         """Run `blocks` at the levels of `schedule`: a block of level l passes messages among the
-        level's nodes along its edges and leaves the other nodes' latents as they are."""
+        level's nodes along its edges and leaves the other nodes' latents as they are. summaries:
+        (one MLP per block, each node's garment from 0 or None for one garment, the garments'
+        count): after each block every node adds its garment's summary (`global_context`)."""
         e = list(e)
-        for block, level in zip(blocks, schedule):
+        for k, (block, level) in enumerate(zip(blocks, schedule)):
             if level == 0:
                 h, e[0] = block(h, e[0], graph.local_edge_index[0])
             else:
                 ids = graph.nodes[level]
                 sub, e[level] = block(h[ids], e[level], graph.local_edge_index[level])
                 h = h.index_copy(0, ids, sub)
+            if summaries is not None:
+                h = h + _garment_summary(summaries[0][k], h, summaries[1], summaries[2])
         return h, e
+
+
+def _garment_summary(summary: nn.Module, h: Tensor, group: Tensor | None, count: int) -> Tensor:
+    """Per node (N, D), `summary` of the mean latent of its garment; group: each node's garment
+    from 0 (None: every node one garment's), count: how many garments."""
+    if group is None:
+        return summary(h.mean(0, keepdim=True)).expand_as(h)
+    sizes = torch.zeros(count, dtype=h.dtype, device=h.device).index_add_(0, group, torch.ones_like(h[:, 0]))
+    means = torch.zeros(count, h.shape[1], dtype=h.dtype, device=h.device).index_add_(0, group, h)
+    return summary(means / sizes.clamp_min(1.0)[:, None]).index_select(0, group)

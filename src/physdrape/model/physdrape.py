@@ -124,6 +124,7 @@ class PhysDrape(nn.Module):
             node_in, edge_in, 6, latent=config.latent, blocks=config.blocks, mlp_layers=config.mlp_layers,
             levels=config.levels, zero_init_output=config.zero_init_output,
             look_back_in=STEP_FEATURES, look_back_blocks=config.look_back_blocks, mesh_blocks=config.mesh_blocks,
+            global_context=config.global_context,
         )
         self.solver = StretchingSolver(kind=config.solver, eta=config.eta, gamma=config.gamma, max_step=config.max_step,
                                        margin=config.margin, contact_stiffness=config.contact_stiffness,
@@ -251,10 +252,10 @@ class PhysDrape(nn.Module):
             nodes, edges = self.node_normalizer(nodes), self.edge_normalizer(edges)
             if cfg.look_back_blocks:
                 first, out = self.gnn.forward_looking_back(nodes, edges, graph, self._look_back(batch, at, query),
-                                                           parts=parts)
+                                                           parts=parts, garments=batch.garments.vert_garment)
                 earlier.append(x_gnn + cfg.displacement_scale * first[:, :3].to(at.dtype))
             else:
-                out = self.gnn(nodes, edges, graph, parts=parts)
+                out = self.gnn(nodes, edges, graph, parts=parts, garments=batch.garments.vert_garment)
             out = out.to(at.dtype)
             if cfg.displacement is Displacement.PRECONDITIONED:
                 precondition = self.solver.preconditioner(at.detach(), batch.cloth, bodies=batch.bodies,

@@ -181,7 +181,8 @@ class Trainer:
         starts from the drape without the network and takes the checkpoint's features); and the
         look-back stage (`model.look_back_blocks`) when the checkpoint has none (its decoder starts
         at zero, so the fine-tune starts from the checkpoint's drape), and the processor blocks
-        beyond the checkpoint's (`model.mesh_blocks`, which start as the identity: likewise)."""
+        beyond the checkpoint's (`model.mesh_blocks`, which start as the identity: likewise), and the
+        garments' summaries (`model.global_context`, which start at zero: likewise)."""
         weights, config = ckpt.read_checkpoint(checkpoint)
         own = self.model.state_dict()
         keep = []
@@ -192,7 +193,7 @@ class Trainer:
             last = f"gnn.decoder.{len(self.model.gnn.decoder) - 1}."
             keep += [k for k in own if k.startswith(last)]
         added = tuple(f"gnn.blocks.{i}." for i in range(self.model.config.blocks, len(self.model.gnn.blocks)))
-        keep += [k for k in own if k.startswith(("gnn.look_back_", *added)) and k not in weights]
+        keep += [k for k in own if k.startswith(("gnn.look_back_", "gnn.global_mlps.", *added)) and k not in weights]
         weights = {**weights, **{k: own[k] for k in keep}}
         try:
             self.model.load_state_dict({k: v.to(own[k].dtype) if k in own else v for k, v in weights.items()})
