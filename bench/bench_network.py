@@ -3,7 +3,8 @@
 Run: .venv/bin/python bench/bench_network.py [--repeats 15] [--verts 4000]
     [--sizes 32x4 32x9l4 48x9l4 64x9l4 32x17l4] [--compile] [--out results/bench_network]
 (a size is latent x blocks, optionally l + coarse graph levels: with levels the blocks walk
-V-cycles over the coarse graphs, `physdrape.model.gnn.level_schedule`).
+V-cycles over the coarse graphs, `physdrape.model.gnn.level_schedule`; a trailing g adds the
+garment's summary after every block, `ModelConfig.global_context`, e.g. 32x9l4g).
 
 The garment is an open tube of about `--verts` vertices around an icosphere body of ~10k
 vertices. Every size is timed in one run, interleaved round by round so that a change in the
@@ -43,10 +44,12 @@ def reach(blocks: int, levels: int) -> int:
     return sum(2 ** level for level in level_schedule(blocks, levels))
 
 
-def parse(size: str) -> tuple[int, int, int]:
-    dims, _, levels = size.partition("l")
+def parse(size: str) -> tuple[int, int, int, bool]:
+    """(latent, blocks, levels, garment summaries) of a size such as 32x9l4 or 32x9l4g."""
+    summaries = size.endswith("g")
+    dims, _, levels = size.removesuffix("g").partition("l")
     latent, blocks = (int(v) for v in dims.split("x"))
-    return latent, blocks, int(levels or 0)
+    return latent, blocks, int(levels or 0), summaries
 
 
 def main() -> None:
@@ -63,9 +66,9 @@ def main() -> None:
     batch = problem(1, args.verts)
     models = {}
     for size in args.sizes:
-        latent, blocks, levels = parse(size)
+        latent, blocks, levels, summaries = parse(size)
         torch.manual_seed(0)
-        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels)).eval()
+        model = PhysDrape(ModelConfig(latent=latent, blocks=blocks, levels=levels, global_context=summaries)).eval()
         model.accumulate_statistics(batch)
         models[size] = model
         if args.compile:
@@ -116,10 +119,11 @@ def main() -> None:
     first = statistics.median(gnn[args.sizes[0]])
     rows = []
     for size, model in models.items():
-        latent, blocks, levels = parse(size.split()[0])
+        latent, blocks, levels, summaries = parse(size.split()[0])
         median = statistics.median(gnn[size])
         rows.append({"size": size, "compiled": size.endswith("compiled"), "latent": latent, "blocks": blocks,
-                     "levels": levels, "training_median_ms": statistics.median(training[size]),
+                     "levels": levels, "global_context": summaries,
+                     "training_median_ms": statistics.median(training[size]),
                      "params": sum(p.numel() for p in model.parameters()), "reach_edges": reach(blocks, levels),
                      "inputs_median_ms": statistics.median(inputs[size]), "gnn_median_ms": median,
                      "gnn_min_ms": min(gnn[size]), "gnn_max_ms": max(gnn[size]), "gnn_ratio_to_first": median / first})
