@@ -138,11 +138,12 @@ def main() -> None:
              f"Garment: {record['garment_verts']} vertices; body: {record['body_verts']} vertices; "
              f"median of {args.repeats} interleaved rounds; load average "
              + ", ".join(f"{v:.2f}" for v in record["load_average"]), "",
-             "| size (D×L, levels) | params | reach [mesh edges] | GNN median [ms] | GNN min–max [ms] | GNN ratio "
-             "| forward + backward median [ms] | graph inputs median [ms] |",
+             "| size (D×L, levels; summaries: `global_context`) | params | reach [mesh edges] | GNN median [ms] "
+             "| GNN min–max [ms] | GNN ratio | forward + backward median [ms] | graph inputs median [ms] |",
              "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        lines.append(f"| {r['latent']}×{r['blocks']}, {r['levels']}{', compiled' if r['compiled'] else ''} | "
+        lines.append(f"| {r['latent']}×{r['blocks']}, {r['levels']}{', summaries' if r['global_context'] else ''}"
+                     f"{', compiled' if r['compiled'] else ''} | "
                      f"{r['params']:,} | {r['reach_edges']} | "
                      f"{r['gnn_median_ms']:.1f} | {r['gnn_min_ms']:.1f}–{r['gnn_max_ms']:.1f} | "
                      f"{r['gnn_ratio_to_first']:.2f} | {r['training_median_ms']:.1f} | {r['inputs_median_ms']:.1f} |")
