@@ -3,10 +3,11 @@ garment of a batch, and reaching every vertex of the garment in one block."""
 
 import torch
 from device_params import needs_compiler
-from drape_cases import make_input
+from drape_cases import layered_tubes, make_input
 
 from physdrape.config_io import to_mapping
 from physdrape.model import ModelConfig, PhysDrape, Variant
+from physdrape.model.physdrape import summary_groups
 from physdrape.train.loss import LossConfig, drape_loss
 
 CONFIG = ModelConfig(latent=16, blocks=3, levels=1, variant=Variant.GNN_ONLY)
@@ -57,8 +58,8 @@ def test_each_garment_of_a_batch_is_summarised_on_its_own(two_tubes):
     nodes, edges, graph = model.graph_inputs(batch)
     offsets = batch.garments.vert_offsets.tolist()
     garments = batch.garments.vert_garment
-    whole = model.gnn(nodes.double(), edges.double(), graph, garments=garments)
-    pieces = model.gnn(nodes.double(), edges.double(), graph, parts=offsets, garments=garments)
+    whole = model.gnn(nodes.double(), edges.double(), graph, groups=garments)
+    pieces = model.gnn(nodes.double(), edges.double(), graph, parts=offsets, groups=garments)
     torch.testing.assert_close(pieces, whole, rtol=1e-12, atol=1e-12)
     for k in range(2):
         alone = make_input(two_tubes[k:k + 1], [[0.15, 0.13][k]])
@@ -85,13 +86,38 @@ def test_a_summary_reaches_the_whole_garment_in_one_block(two_tubes):
                     p.normal_(0.0, 0.1)
         nodes, edges, graph = model.graph_inputs(batch)
         nodes = nodes.double().requires_grad_(True)
-        out = model.gnn(nodes, edges.double(), graph, garments=batch.garments.vert_garment)
+        out = model.gnn(nodes, edges.double(), graph, groups=batch.garments.vert_garment)
         (grad,) = torch.autograd.grad(out[0].sum(), nodes)
         reached[context] = grad.abs().sum(-1) > 0
     first = slice(offsets[0], offsets[1])
     assert int(reached[False][first].sum()) < 10  # vertex 0 and its ring
     assert bool(reached[True][first].all())
     assert not bool(reached[True][offsets[1]:].any())
+
+
+def test_a_multi_piece_garment_is_summarised_piece_by_piece():
+    """A garment whose layer order knows its pieces gets a summary per piece (`summary_groups`):
+    what one piece's vertices read does not reach the other piece's output, as it does with one
+    summary for the garment (float64)."""
+    from dataclasses import replace
+
+    batch = layered_tubes(0.15)
+    n = batch.garments.num_verts // 2  # the inner tube, then the outer one
+    piece = torch.cat([torch.zeros(n, dtype=torch.int64), torch.ones(n, dtype=torch.int64)])
+    batch = replace(batch, cloth=replace(batch.cloth, layers=replace(batch.cloth.layers, piece=piece)))
+    groups = summary_groups(batch)
+    assert len(set(groups[:n].tolist())) == 1 and len(set(groups[n:].tolist())) == 1 and groups[0] != groups[n]
+    torch.manual_seed(0)
+    model = _with_summaries().double().eval()
+    _random_summaries(model)
+    nodes, edges, graph = model.graph_inputs(batch)
+    nodes, edges = nodes.double(), edges.double()
+    moved = nodes.clone()
+    moved[n:] += 1.0  # the outer piece reads other inputs
+    for grouping, apart in ((groups, True), (batch.garments.vert_garment, False)):
+        inner = model.gnn(nodes, edges, graph, groups=grouping)[:n]
+        inner_moved = model.gnn(moved, edges, graph, groups=grouping)[:n]
+        assert torch.equal(inner, inner_moved) == apart
 
 
 @needs_compiler
@@ -107,8 +133,8 @@ def test_compiled_summaries_compute_what_the_eager_ones_do(two_tubes):
 
     def run():
         with torch.no_grad():
-            return [model.gnn(nodes, edges, graph, garments=garments),
-                    model.gnn(nodes, edges, graph, parts=offsets, garments=garments)]
+            return [model.gnn(nodes, edges, graph, groups=garments),
+                    model.gnn(nodes, edges, graph, parts=offsets, groups=garments)]
 
     eager = run()
     model.gnn.compile_network()

@@ -47,8 +47,9 @@ class ModelConfig:
     starting as the identity (`EncodeProcessDecode`): more local work per pass, addable to a
     trained network (`optim.init_from` keeps them at their start).
     global_context: after each processor block every vertex also gets its garment's summary (an
-    MLP of the mean of the garment's latents, `EncodeProcessDecode`): garment-wide information
-    in every block; the summaries start at zero, addable to a trained network likewise.
+    MLP of the mean of the garment's latents, `EncodeProcessDecode`; each piece's of a garment with
+    a layer order of pieces, `model.physdrape.summary_groups`): garment-wide information in every
+    block; the summaries start at zero, addable to a trained network likewise.
     zero_init_output: the decoder's last layer starts at zero (Δx = 0, f̂ = 0 before training).
     train_steps / eval_steps: solver steps T in training and evaluation (paper: 3, 15).
     solver: "two_level" (conjugate directions, block Jacobi plus a coarse correction on smooth

@@ -103,11 +103,12 @@ class EncodeProcessDecode(nn.Module):
         look_back_in, look_back_blocks: the look-back stage's feature width and its blocks (an
             odd number, a V-cycle over (look_back_blocks − 1) / 2 levels at most `levels`; 0:
             no stage). Its decoder starts at zero: the stage adds nothing until trained.
-        global_context: after each processor block every node's latent also gets its garment's
-            summary, an MLP of the mean of the garment's node latents (one MLP per block): what
-            the whole garment does reaches every vertex at once, beyond the V-cycles' reach. Each
-            MLP's last layer starts at zero, so that the summaries can be added to a trained
-            network without changing its output.
+        global_context: after each processor block every node's latent also gets its group's
+            summary (its garment's, or its piece's of a multi-piece garment: `forward`'s groups),
+            an MLP of the mean of the group's node latents (one MLP per block): what the whole
+            piece does reaches every vertex at once, beyond the V-cycles' reach. Each MLP's last
+            layer starts at zero, so that the summaries can be added to a trained network
+            without changing its output.
     Forward: nodes (N, node_in), edges (E', edge_in) of all levels in `graph.edge_index`'s order,
     graph (`GraphLevels` with at least `levels` coarse levels) → (N, out).
     """
@@ -158,29 +159,29 @@ class EncodeProcessDecode(nn.Module):
         self._compile_pending = {False, True}
 
     def forward(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None = None,
-                garments: Tensor | None = None) -> Tensor:
+                groups: Tensor | None = None) -> Tensor:
         """parts: vertex bounds [0, b₁, …, N] of pieces no edge crosses (whole garments of a
         batch), processed one after the other: the same output, with each piece's latents small
         enough to stay in the CPU's caches (a batch of garments as one graph runs about half as
-        fast per garment on one thread). None: the graph in one piece. garments: each node's
-        garment (N,) int64, ascending, for the garments' summaries (`global_context`); None: one
-        garment."""
-        outs = [self.decoder(h) for h, _, _ in self._processed(nodes, edges, graph, parts, garments)]
+        fast per garment on one thread). None: the graph in one piece. groups: each node's
+        summary group (N,) int64 (`global_context`: a number per garment or piece, any numbers,
+        no group across parts); None: one group."""
+        outs = [self.decoder(h) for h, _, _ in self._processed(nodes, edges, graph, parts, groups)]
         return outs[0] if len(outs) == 1 else torch.cat(outs)
 
     def forward_looking_back(self, nodes: Tensor, edges: Tensor, graph: GraphLevels,
                              look_back: Callable[[Tensor], Tensor], parts: list[int] | None = None,
-                             garments: Tensor | None = None) -> tuple[Tensor, Tensor]:
+                             groups: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """The network's output before and after its look-back stage, each (N, out): the blocks'
         output y₁ as `forward` makes it; then `look_back`(y₁) → (N, look_back_in) features read
         where y₁ moves the garment (the caller's physics, normalised), encoded and added to the
         latents, the look-back blocks on the mesh and coarse edges' latents as the blocks left
-        them, and y₁ + the look-back decoder's output. parts, garments: as `forward` (the
+        them, and y₁ + the look-back decoder's output. parts, groups: as `forward` (the
         look-back reads the whole batch at once, between the two stages; its blocks take no
         summaries)."""
         if not self.look_back_schedule:
             raise ValueError("this network has no look-back stage (ModelConfig.look_back_blocks = 0)")
-        pieces = list(self._processed(nodes, edges, graph, parts, garments))
+        pieces = list(self._processed(nodes, edges, graph, parts, groups))
         first = [self.decoder(h) for h, _, _ in pieces]
         first_out = torch.cat(first)
         features = torch.split(look_back(first_out), [len(y) for y in first])
@@ -192,28 +193,27 @@ class EncodeProcessDecode(nn.Module):
         return first_out, first_out + torch.cat(second)
 
     def _processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, parts: list[int] | None,
-                   garments: Tensor | None) -> Iterator[tuple[Tensor, list[Tensor], GraphLevels]]:
+                   groups: Tensor | None) -> Iterator[tuple[Tensor, list[Tensor], GraphLevels]]:
         """Per piece (`forward`'s parts), one after the other, its node latents, its edge latents
         per level and its graph after the encoders and the processor blocks (a generator: a
         caller that decodes each piece as it comes holds one piece's latents at a time)."""
         run = self._encoded_and_processed if self._compiled is None else self._run_compiled
         if parts is None or len(parts) <= 2:
-            yield run(nodes, edges, graph, *self._summary_groups(garments, 0, len(nodes)))
+            yield run(nodes, edges, graph, *self._summary_groups(groups, 0, len(nodes)))
             return
         per_level = torch.split(edges, graph.edge_counts)
         for start, stop in itertools.pairwise(parts):
             sub, chosen = graph.part(start, stop)
             piece_edges = torch.cat([e[k] for e, k in zip(per_level, chosen)])
-            yield run(nodes[start:stop], piece_edges, sub, *self._summary_groups(garments, start, stop))
+            yield run(nodes[start:stop], piece_edges, sub, *self._summary_groups(groups, start, stop))
 
-    def _summary_groups(self, garments: Tensor | None, start: int, stop: int) -> tuple[Tensor | None, int]:
-        """The nodes start…stop's garment numbers from 0 (None: no summaries, or one garment) and
-        how many garments they hold."""
-        if self.global_mlps is None or garments is None:
+    def _summary_groups(self, groups: Tensor | None, start: int, stop: int) -> tuple[Tensor | None, int]:
+        """The nodes start…stop's summary groups numbered from 0 (None: no summaries, or one
+        group) and how many groups they hold."""
+        if self.global_mlps is None or groups is None:
             return None, 1
-        group = garments[start:stop]
-        group = group - group[:1]
-        return group, int(group[-1]) + 1 if len(group) else 1
+        names, group = torch.unique(groups[start:stop], return_inverse=True)
+        return group, len(names)
 
     def _run_compiled(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, group: Tensor | None = None,
                       count: int = 1) -> tuple[Tensor, list[Tensor], GraphLevels]:
@@ -249,8 +249,8 @@ class EncodeProcessDecode(nn.Module):
                 summaries: tuple[nn.ModuleList, Tensor | None, int] | None) -> tuple[Tensor, list[Tensor]]:
         """Run `blocks` at the levels of `schedule`: a block of level l passes messages among the
         level's nodes along its edges and leaves the other nodes' latents as they are. summaries:
-        (one MLP per block, each node's garment from 0 or None for one garment, the garments'
-        count): after each block every node adds its garment's summary (`global_context`)."""
+        (one MLP per block, each node's group from 0 or None for one group, the groups' count):
+        after each block every node adds its group's summary (`global_context`)."""
         e = list(e)
         for k, (block, level) in enumerate(zip(blocks, schedule)):
             if level == 0:
@@ -265,8 +265,8 @@ class EncodeProcessDecode(nn.Module):
 
 
 def _garment_summary(summary: nn.Module, h: Tensor, group: Tensor | None, count: int) -> Tensor:
-    """Per node (N, D), `summary` of the mean latent of its garment; group: each node's garment
-    from 0 (None: every node one garment's), count: how many garments."""
+    """Per node (N, D), `summary` of the mean latent of its group; group: each node's group from 0
+    (None: every node in one group), count: how many groups."""
     if group is None:
         return summary(h.mean(0, keepdim=True)).expand_as(h)
     sizes = torch.zeros(count, dtype=h.dtype, device=h.device).index_add_(0, group, torch.ones_like(h[:, 0]))

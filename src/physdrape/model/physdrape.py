@@ -108,6 +108,17 @@ def network_parts(offsets: list[int], most: int = PART_VERTICES) -> list[int]:
     return bounds + [offsets[-1]] if offsets[-1] > bounds[-1] else bounds
 
 
+def summary_groups(batch: DrapeInput) -> Tensor:
+    """Each vertex's summary group (ΣV,) int64 (`ModelConfig.global_context`): its piece where its
+    garment has a layer order of pieces (a suit's jacket and trousers each summarised on their
+    own, as the single garments the network is trained on), else its garment."""
+    garment = batch.garments.vert_garment
+    layers = batch.cloth.layers
+    if layers is None or layers.piece is None:
+        return garment
+    return torch.where(layers.piece >= 0, layers.piece + len(batch.garments.vert_offsets), garment)
+
+
 class PhysDrape(nn.Module):
     """The PhysDrape model; `config.variant` selects the ablation."""
 
@@ -249,13 +260,14 @@ class PhysDrape(nn.Module):
             at = x_gnn if k == 0 else x_gnn.detach()
             nodes, edges, graph, query = self._graph_inputs(batch, at)
             parts = network_parts(batch.garments.vert_offsets.tolist())
+            groups = summary_groups(batch) if cfg.global_context else None
             nodes, edges = self.node_normalizer(nodes), self.edge_normalizer(edges)
             if cfg.look_back_blocks:
                 first, out = self.gnn.forward_looking_back(nodes, edges, graph, self._look_back(batch, at, query),
-                                                           parts=parts, garments=batch.garments.vert_garment)
+                                                           parts=parts, groups=groups)
                 earlier.append(x_gnn + cfg.displacement_scale * first[:, :3].to(at.dtype))
             else:
-                out = self.gnn(nodes, edges, graph, parts=parts, garments=batch.garments.vert_garment)
+                out = self.gnn(nodes, edges, graph, parts=parts, groups=groups)
             out = out.to(at.dtype)
             if cfg.displacement is Displacement.PRECONDITIONED:
                 precondition = self.solver.preconditioner(at.detach(), batch.cloth, bodies=batch.bodies,
