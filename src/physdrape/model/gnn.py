@@ -207,16 +207,17 @@ class EncodeProcessDecode(nn.Module):
             piece_edges = torch.cat([e[k] for e, k in zip(per_level, chosen)])
             yield run(nodes[start:stop], piece_edges, sub, *self._summary_groups(groups, start, stop))
 
-    def _summary_groups(self, groups: Tensor | None, start: int, stop: int) -> tuple[Tensor | None, int]:
-        """The nodes start…stop's summary groups numbered from 0 (None: no summaries, or one
-        group) and how many groups they hold."""
+    def _summary_groups(self, groups: Tensor | None, start: int,
+                        stop: int) -> tuple[Tensor | None, Tensor | None]:
+        """The nodes start…stop's summary groups numbered from 0 and each group's node count, found
+        once for every block (None, None: no summaries, or one group)."""
         if self.global_mlps is None or groups is None:
-            return None, 1
-        names, group = torch.unique(groups[start:stop], return_inverse=True)
-        return group, len(names)
+            return None, None
+        _, group, sizes = torch.unique(groups[start:stop], return_inverse=True, return_counts=True)
+        return group, sizes
 
     def _run_compiled(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, group: Tensor | None = None,
-                      count: int = 1) -> tuple[Tensor, list[Tensor], GraphLevels]:
+                      sizes: Tensor | None = None) -> tuple[Tensor, list[Tensor], GraphLevels]:
         """`_encoded_and_processed` compiled (`compile_network`); the first call in each grad mode
         compiles, one thread at a time, and falls back to eager for good where compiling fails."""
         mode = torch.is_grad_enabled()
@@ -224,33 +225,33 @@ class EncodeProcessDecode(nn.Module):
             with _COMPILE_LOCK:
                 if self._compiled is not None and mode in self._compile_pending:
                     try:
-                        out = self._compiled(nodes, edges, graph, group, count)
+                        out = self._compiled(nodes, edges, graph, group, sizes)
                     except Exception as exc:  # noqa: BLE001 - any backend failure: run eagerly instead
                         warnings.warn(f"torch.compile could not compile the network ({type(exc).__name__}: "
                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); it runs eagerly", stacklevel=2)
                         self._compiled = None
-                        out = self._encoded_and_processed(nodes, edges, graph, group, count)
+                        out = self._encoded_and_processed(nodes, edges, graph, group, sizes)
                     self._compile_pending.discard(mode)
                     return out
         if self._compiled is None:
-            return self._encoded_and_processed(nodes, edges, graph, group, count)
-        return self._compiled(nodes, edges, graph, group, count)
+            return self._encoded_and_processed(nodes, edges, graph, group, sizes)
+        return self._compiled(nodes, edges, graph, group, sizes)
 
     def _encoded_and_processed(self, nodes: Tensor, edges: Tensor, graph: GraphLevels, group: Tensor | None = None,
-                               count: int = 1) -> tuple[Tensor, list[Tensor], GraphLevels]:
+                               sizes: Tensor | None = None) -> tuple[Tensor, list[Tensor], GraphLevels]:
         h = self.node_encoder(nodes)
         e = list(torch.split(self.edge_encoder(edges), graph.edge_counts))
-        summaries = None if self.global_mlps is None else (self.global_mlps, group, count)
+        summaries = None if self.global_mlps is None else (self.global_mlps, group, sizes)
         h, e = self._blocks(self.blocks, self.schedule, h, e, graph, summaries)
         return h, e, graph
 
     @staticmethod
     def _blocks(blocks: nn.ModuleList, schedule: list[int], h: Tensor, e: list[Tensor], graph: GraphLevels,
-                summaries: tuple[nn.ModuleList, Tensor | None, int] | None) -> tuple[Tensor, list[Tensor]]:
+                summaries: tuple[nn.ModuleList, Tensor | None, Tensor | None] | None) -> tuple[Tensor, list[Tensor]]:
         """Run `blocks` at the levels of `schedule`: a block of level l passes messages among the
         level's nodes along its edges and leaves the other nodes' latents as they are. summaries:
-        (one MLP per block, each node's group from 0 or None for one group, the groups' count):
-        after each block every node adds its group's summary (`global_context`)."""
+        (one MLP per block, each node's group from 0 and each group's node count, or None, None
+        for one group): after each block every node adds its group's summary (`global_context`)."""
         e = list(e)
         for k, (block, level) in enumerate(zip(blocks, schedule)):
             if level == 0:
@@ -260,15 +261,14 @@ class EncodeProcessDecode(nn.Module):
                 sub, e[level] = block(h[ids], e[level], graph.local_edge_index[level])
                 h = h.index_copy(0, ids, sub)
             if summaries is not None:
-                h = h + _garment_summary(summaries[0][k], h, summaries[1], summaries[2])
+                h = h + _group_summary(summaries[0][k], h, summaries[1], summaries[2])
         return h, e
 
 
-def _garment_summary(summary: nn.Module, h: Tensor, group: Tensor | None, count: int) -> Tensor:
+def _group_summary(summary: nn.Module, h: Tensor, group: Tensor | None, sizes: Tensor | None) -> Tensor:
     """Per node (N, D), `summary` of the mean latent of its group; group: each node's group from 0
-    (None: every node in one group), count: how many groups."""
+    and sizes (G,): each group's node count (None, None: every node in one group)."""
     if group is None:
         return summary(h.mean(0, keepdim=True)).expand_as(h)
-    sizes = torch.zeros(count, dtype=h.dtype, device=h.device).index_add_(0, group, torch.ones_like(h[:, 0]))
-    means = torch.zeros(count, h.shape[1], dtype=h.dtype, device=h.device).index_add_(0, group, h)
-    return summary(means / sizes.clamp_min(1.0)[:, None]).index_select(0, group)
+    means = torch.zeros(len(sizes), h.shape[1], dtype=h.dtype, device=h.device).index_add_(0, group, h)
+    return summary(means / sizes.to(h.dtype)[:, None]).index_select(0, group)
