@@ -46,6 +46,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from timing import speedups
+
 ROOT = Path(__file__).resolve().parents[1]
 ROWS = {
     "same_pose": "warm drape, same pose [ms]",
@@ -201,16 +203,15 @@ def main() -> None:
                         samples.setdefault(f"{name} ({device})", {}).setdefault(row, []).extend(values)
                 if paired:
                     for row in got["physdrape"]:
-                        ratios.setdefault(row, []).extend(
-                            b / a for a, b in zip(got["physdrape"][row], got["physdrape_base"][row]))
+                        ratios.setdefault(row, []).extend(speedups(got["physdrape"][row], got["physdrape_base"][row]))
             if args.cold:
                 samples.setdefault(f"{this} (cpu)", {}).setdefault("cold_cli", []).extend(
                     _cold_cli(ROOT / "src", "physdrape", 1, args.threads, args.cold_garment))
                 if base_dir is not None:
                     samples.setdefault(f"{base} (cpu)", {}).setdefault("cold_cli", []).extend(
                         _cold_cli(base_dir, "physdrape_base", 1, args.threads, args.cold_garment))
-                    ratios.setdefault("cold_cli", []).append(samples[f"{base} (cpu)"]["cold_cli"][-1]
-                                                             / samples[f"{this} (cpu)"]["cold_cli"][-1])
+                    ratios.setdefault("cold_cli", []).extend(speedups(samples[f"{this} (cpu)"]["cold_cli"][-1:],
+                                                                      samples[f"{base} (cpu)"]["cold_cli"][-1:]))
     cold = "physdrape drape" + (f" --garment {args.cold_garment}" if args.cold_garment != "default" else "")
     rows = dict(ROWS, **({"cold_cli": f"cold `{cold}` (new process, all outputs) [ms]"} if args.cold else {}))
     medians = {key: {row: statistics.median(v) for row, v in got.items()} for key, got in samples.items()}

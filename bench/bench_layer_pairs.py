@@ -27,7 +27,7 @@ import torch
 from bench_drape import export_base
 from eval_record import suit_instances
 from report import page_head, write_report
-from timing import call_ms
+from timing import call_ms, speedups
 
 from physdrape.model.config import ModelConfig
 
@@ -79,7 +79,7 @@ def main() -> None:
                 for k in (("this", "base") if r % 2 == 0 else ("base", "this")):
                     samples[k].append(call_ms(pair[k]))
             row["ms"][name] = {k: statistics.median(v) for k, v in samples.items()}
-            row["ms"][name]["ratio"] = statistics.median(b / a for a, b in zip(samples["this"], samples["base"]))
+            row["ms"][name]["ratio"] = statistics.median(speedups(samples["this"], samples["base"]))
         rows.append(row)
         print(f"[layer_pairs] {inst.garment}: " + ", ".join(
             f"{n} {v['this']:.1f} against {v['base']:.1f} ms" for n, v in row["ms"].items()), flush=True)

@@ -34,6 +34,12 @@ def side_by_side(this: list[float], base: list[float]) -> dict:
             "ratio": statistics.median(a / b for a, b in zip(this, base, strict=True))}
 
 
+def speedups(this: list[float], base: list[float]) -> list[float]:
+    """The per-pair ratios base / this of two commits' paired times (> 1: this commit is faster);
+    their median is the speed-up the benchmarks that report "base / this" give."""
+    return [b / a for a, b in zip(this, base, strict=True)]
+
+
 def median_bound(values: list[float], bounds: list[bool]) -> tuple[float, bool]:
     """(median, is a lower bound): values with bounds[i] True are lower bounds (inf: never). The
     median is a bound when a bound lies at or below its upper middle value (with an even count
