@@ -305,6 +305,23 @@ def test_batches_of_one_topology_share_their_structure_and_no_other():
     torch.testing.assert_close(first.solve(r), expected, rtol=0, atol=0)
 
 
+def test_pair_blocks_given_factorise_as_those_formed_and_refactoring_forms_afresh():
+    """A solver's pair blocks (its local terms' buffer) serve as K's storage in place; the coarse
+    matrices' storage is reused from one factorisation to the next, each formed afresh."""
+    from physdrape.physics.majorant import pair_blocks
+
+    _, cloth, x = _batch(sheets=2)
+    extra = _contact_blocks(cloth.num_verts)
+    r = torch.randn(x.shape, generator=torch.Generator().manual_seed(3), dtype=x.dtype)
+    formed, given = CoarseSpace(cloth), CoarseSpace(cloth)
+    formed.factor(x, extra)
+    layout, count = given.pair_layout
+    given.factor(x * 1.02, extra)  # a factorisation before: its matrices must not linger
+    given.factor(x, extra, pair_blocks(x, cloth, layout, count))
+    torch.testing.assert_close(given.solve(r), formed.solve(r), rtol=1e-10, atol=0)
+    torch.testing.assert_close(given.stiffness_product(r), formed.stiffness_product(r), rtol=1e-12, atol=0)
+
+
 def test_the_band_factorisation_and_solve_run_on_one_blas_thread(monkeypatch):
     """The solver brings its own threads; SciPy's LAPACK must not start threads of its own beside
     them (they would take the cores the solver's threads run on)."""

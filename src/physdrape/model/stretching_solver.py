@@ -214,7 +214,7 @@ class StretchingSolver(nn.Module):
                                    active_links=True)
         coarse = CoarseSpace(cloth, levels=self.coarse_levels, smoothing=self.coarse_smoothing)
         owner = cloth.vert_garment
-        per_garment = partial(_garment_dot, cloth)
+        per_garment = cloth.sum_vertex_field
 
         requery_every, follow_planes = self.planes_schedule()
         step = eta
@@ -298,7 +298,7 @@ class StretchingSolver(nn.Module):
             return parts
         owner = cloth.vert_garment
         newton = _truncated_newton(partial(_precondition, inverse, coarse), coarse.stiffness_product, force,
-                                   newton_iterations, partial(_garment_dot, cloth), owner)
+                                   newton_iterations, cloth.sum_vertex_field, owner)
         return parts + (self._clip(newton),)
 
     def _first_step(self, x: Tensor, cloth: Cloth, bodies: BodySurface | None, body_index: Tensor | None,
@@ -346,12 +346,6 @@ class StretchingSolver(nn.Module):
             lower = ~done & (trial < phi0)
             phi, done = torch.where(lower, trial, phi), done | lower
         return torch.where(done, alpha, torch.zeros_like(alpha)), torch.where(done, phi, phi0)
-
-
-def _garment_dot(cloth: Cloth, values: Tensor) -> Tensor:
-    """Per garment, the sum over its vertices of a per-vertex field's components (V, 3) → (G,):
-    with values = a * b, the garments' dot products of the fields a and b."""
-    return cloth.sum_per_garment(values.sum(-1), cloth.vert_garment)
 
 
 def clip_moves(move: Tensor, max_length: float) -> Tensor:

@@ -360,6 +360,7 @@ class CoarseSpace:
         self._factors: list | None = None  # band: one per garment (NumPy); dense: (count, n, n) per group
         self._gram: list[Tensor] | None = None
         self.blocks: Tensor | None = None  # K at the last `factor`: a 3 × 3 block per vertex pair, float64
+        self._buffer: Tensor | None = None
         self._ends32: Tensor | None = None  # the pairs' vertices, int32 (what the product kernel reads)
 
     @property
@@ -376,13 +377,15 @@ class CoarseSpace:
         the two vertices of each link; their diagonal blocks H are part of `extra_blocks`, which
         vertex_blocks must then include for K to be PSD. pair_blocks: the strain majorant's pair
         blocks at x in `pair_layout` (a solver forms them with its step's local terms), or None
-        (formed here). link_weight: each link's factor (L,) (`physics.forces.layer_link_weights`;
-        the diagonal blocks in vertex_blocks must carry the same), or None: all 1."""
+        (formed here); float64 pair blocks are a scratch buffer: K's blocks are formed in them in
+        place (the solver forms them again before their next use). link_weight: each link's factor
+        (L,) (`physics.forces.layer_link_weights`; the diagonal blocks in vertex_blocks must carry
+        the same), or None: all 1."""
         s = self._s
         with torch.no_grad():
             if pair_blocks is None:
                 pair_blocks = majorant_pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
-            blocks = pair_blocks.to(torch.float64, copy=True)
+            blocks = pair_blocks.to(torch.float64)
             if vertex_blocks is not None:
                 blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
             if self._links is not None:
@@ -391,7 +394,11 @@ class CoarseSpace:
                     coupling = coupling * link_weight.to(blocks.dtype)[:, None, None]
                 blocks.index_add_(0, s.pair_of_link[:, 0], coupling).index_add_(0, s.pair_of_link[:, 1], coupling)
             self.blocks = blocks
-            buffer = blocks.new_zeros(s.buffer_size)
+            if self._buffer is None:  # the coarse matrices' storage, formed again at each factorisation
+                self._buffer = blocks.new_zeros(s.buffer_size)
+            else:
+                self._buffer.zero_()
+            buffer = self._buffer
             for group in s.groups:  # Pᵀ K P: G times the pair blocks of the group's garments
                 group.galerkin(blocks, buffer)
         if s.banded:
