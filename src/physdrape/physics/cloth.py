@@ -143,10 +143,11 @@ class Cloth:
         consecutive rows (`GarmentBatch.pack`), so each garment's rows are summed as one block:
         the rows summed one by one and scattered into the garments cost several times as much on
         the CPU (a sum over a trailing dimension of 3 is slow there), and the solver forms such
-        dot products dozens of times per step."""
-        spans = _VERTEX_SPANS.get(self.vert_garment, lambda owner: _spans(owner, self.num_garments))
+        dot products dozens of times per drape."""
+        spans = _VERTEX_SPANS.get(self.vert_garment, _spans)
         if spans is None:  # vertices not grouped by garment: scatter them
             return self.sum_per_garment(values.reshape(values.shape[0], -1).sum(-1), self.vert_garment)
+        spans = spans + [(len(values), len(values))] * (self.num_garments - len(spans))  # garments without vertices
         return torch.stack([values[start:end].sum() for start, end in spans])
 
 
@@ -157,10 +158,10 @@ _BUILT = IdentityMemo(16)
 _VERTEX_SPANS = TensorMemo(64)
 
 
-def _spans(owner: Tensor, count: int) -> list[tuple[int, int]] | None:
-    """Each of `count` garments' consecutive rows [start, end) by owner (N,) (empty where a
-    garment has none), or None where the rows are not grouped by garment in ascending order."""
+def _spans(owner: Tensor) -> list[tuple[int, int]] | None:
+    """The consecutive rows [start, end) of each garment 0 … max(owner) by owner (N,) (empty where
+    a garment has none), or None where the rows are not grouped by garment in ascending order."""
     if len(owner) > 1 and not bool((owner[1:] >= owner[:-1]).all()):
         return None
-    ends = torch.bincount(owner, minlength=count).cumsum(0).tolist()
+    ends = torch.bincount(owner).cumsum(0).tolist()
     return list(zip([0, *ends[:-1]], ends))
