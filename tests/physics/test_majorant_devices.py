@@ -53,3 +53,24 @@ def test_pair_product_is_the_assembled_matrix_times_the_field_and_its_adjoint(de
     weight = torch.randn(verts, 3, generator=gen, dtype=torch.float64)
     (out * weight.to(device)).sum().backward()
     torch.testing.assert_close(v.grad.cpu().reshape(-1), dense.T @ weight.reshape(-1), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_add_blocks_adds_each_block_at_its_row_as_index_add_does(device):
+    """Distinct rows among more blocks: the same blocks bit for bit as torch's index_add_, the rows
+    not named untouched; a mismatch of rows and blocks is refused."""
+    from physdrape.physics.majorant import add_blocks
+
+    gen = torch.Generator().manual_seed(4)
+    blocks = torch.randn(30, 3, 3, generator=gen, dtype=torch.float64)
+    rows = torch.randperm(30, generator=gen)[:12]
+    add = torch.randn(12, 3, 3, generator=gen, dtype=torch.float64)
+    want = blocks.clone().index_add_(0, rows, add)
+    got = blocks.to(device)
+    add_blocks(got, rows.to(device=device, dtype=torch.int32), add.to(device))
+    assert torch.equal(got.cpu(), want)
+    assert torch.equal(got.cpu()[~torch.isin(torch.arange(30), rows)], blocks[~torch.isin(torch.arange(30), rows)])
+    with pytest.raises(ValueError, match="one added block per row"):
+        add_blocks(got, rows[:5].to(device=device, dtype=torch.int32), add.to(device))
+    with pytest.raises(ValueError, match="int32 rows"):
+        add_blocks(got, rows.to(device), add.to(device))

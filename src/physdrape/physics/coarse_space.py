@@ -66,8 +66,8 @@ from physdrape.physics.coarse_factor import (
 )
 from physdrape.physics.forces import links
 from physdrape.physics.galerkin import GalerkinProduct
+from physdrape.physics.majorant import add_blocks, pair_product
 from physdrape.physics.majorant import pair_blocks as majorant_pair_blocks
-from physdrape.physics.majorant import pair_product
 from physdrape.threads import one_blas_thread
 
 __all__ = ["CoarseSpace"]
@@ -309,7 +309,7 @@ class _BatchStructure:
             pair_of_corner=torch.from_numpy(np.concatenate(
                 [g.pair_of_corner + start for g, start in zip(garments, pair_starts)]).astype(np.int32)).to(device),
             pair_of_vertex=torch.from_numpy(np.concatenate(
-                [g.pair_of_vertex + start for g, start in zip(garments, pair_starts)])).to(device),
+                [g.pair_of_vertex + start for g, start in zip(garments, pair_starts)]).astype(np.int32)).to(device),
             pair_of_link=torch.from_numpy(pair_of_link).to(device),
             groups=groups,
             prolong=_sparse_csr(prolong, device),
@@ -385,9 +385,9 @@ class CoarseSpace:
         with torch.no_grad():
             if pair_blocks is None:
                 pair_blocks = majorant_pair_blocks(x, self.cloth, s.pair_of_corner, s.num_pairs)
-            blocks = pair_blocks.to(torch.float64)
+            blocks = pair_blocks.to(torch.float64).contiguous()
             if vertex_blocks is not None:
-                blocks.index_add_(0, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
+                add_blocks(blocks, s.pair_of_vertex, vertex_blocks.detach().to(blocks.dtype))
             if self._links is not None:
                 coupling = -self._links.blocks.to(blocks.dtype)
                 if link_weight is not None:
