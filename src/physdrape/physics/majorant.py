@@ -385,7 +385,7 @@ def add_blocks(blocks: Tensor, rows: Tensor, add: Tensor) -> None:
     """blocks[rows[i]] += add[i], in place: blocks (P, 3, 3) float64, contiguous; rows (N,) int32 of
     distinct rows; add (N, 3, 3) float64 (the vertices' diagonal blocks into their pairs' blocks).
     One launch: torch's index_add_ of 3 × 3 blocks costs several times as much on the CPU."""
-    if rows.dtype != torch.int32 or len(set(rows.shape[:1] + add.shape[:1])) != 1 or not blocks.is_contiguous():
+    if rows.dtype != torch.int32 or rows.shape[:1] != add.shape[:1] or not blocks.is_contiguous():
         raise ValueError(f"add_blocks needs contiguous blocks, int32 rows and one added block per row, got "
                          f"{'contiguous' if blocks.is_contiguous() else 'non-contiguous'} blocks, {rows.dtype} rows "
                          f"{tuple(rows.shape)} and blocks to add {tuple(add.shape)}")
