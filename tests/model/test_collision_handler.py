@@ -7,7 +7,7 @@ import torch
 import trimesh
 
 from physdrape.geometry.proximity import BodySurface
-from physdrape.model.collision_handler import CollisionHandler
+from physdrape.model.collision_handler import EXIT_RADII, CollisionHandler, longest_per_row
 from physdrape.physics.layers import LayerOrder, layer_energy
 
 RADIUS = 0.1
@@ -202,3 +202,47 @@ def test_a_face_in_the_overlap_of_two_body_parts_ends_with_its_centroid_outside(
         out = handler(x, body, body_index, faces=faces)
     assert not bool(body.query(out.mean(0, keepdim=True), body_index=body_index[:1]).inside[0])
     assert not bool(body.query(out, body_index=body_index).inside.any())
+
+
+def test_a_vertex_of_several_stuck_faces_takes_the_longest_offset_not_their_sum():
+    rows = torch.tensor([2, 0, 2, 2, 0])
+    offsets = torch.tensor([[1.0, 0, 0], [0, 2.0, 0], [0, 0, 3.0], [3.0, 0, 0], [0, -1.0, 0]], dtype=torch.float64)
+    field = longest_per_row(rows, offsets, 4)
+    torch.testing.assert_close(field, torch.tensor([[0, 2.0, 0], [0, 0, 0], [0, 0, 3.0], [0, 0, 0]],
+                                                   dtype=torch.float64))  # a tie: the first given
+
+
+def _fan(centre: torch.Tensor, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """A hexagonal fan of six faces around a centre vertex (0) in the plane z = centre's."""
+    angles = torch.arange(6, dtype=torch.float64) * (np.pi / 3)
+    rim = centre + radius * torch.stack([torch.cos(angles), torch.sin(angles), torch.zeros_like(angles)], dim=1)
+    faces = torch.tensor([[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)])
+    return torch.cat([centre[None], rim]), faces
+
+
+def test_what_is_freed_from_an_overlap_moves_at_most_the_longest_exit_radius(overlapping_spheres):
+    body = overlapping_spheres
+    # a fan near the rim of the two spheres' overlap, every vertex and centroid inside: each face
+    # asks its corners out, and the centre vertex is a corner of all six
+    x, faces = _fan(torch.tensor([0.75 * RADIUS, 0.6 * RADIUS, 0.0], dtype=torch.float64), 2e-3)
+    body_index = torch.zeros(len(x), dtype=torch.int64)
+    assert bool(body.query(x, body_index=body_index).inside.all())
+    handler = CollisionHandler(margin=2e-3, centroid_margin=5e-4).double()
+    with torch.no_grad():
+        out = handler._free_stuck(x, faces, body, body_index, torch.arange(len(x)))
+    moved = (out - x).norm(dim=1)
+    assert float(moved.max()) <= EXIT_RADII[-1] * (1 + 1e-9)
+    assert float(moved.min()) > 0  # and they did move out
+
+
+def test_a_vertex_with_no_way_out_within_the_exit_radii_stays_where_it_is(overlapping_spheres):
+    body = overlapping_spheres
+    # the middle of the two spheres' overlap: 6.6 cm from outside in any direction (cloth caught
+    # where an arm is pressed into the torso): no offset frees it, and none throws it deeper
+    x = torch.tensor([[0.75 * RADIUS, 0.0, 0.0]], dtype=torch.float64)
+    body_index = torch.zeros(1, dtype=torch.int64)
+    assert bool(body.query(x, body_index=body_index).inside[0])
+    handler = CollisionHandler(margin=2e-3).double()
+    with torch.no_grad():
+        out = handler._free_stuck(x, None, body, body_index, torch.tensor([0]))
+    torch.testing.assert_close(out, x, rtol=0, atol=0)

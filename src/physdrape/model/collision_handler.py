@@ -121,19 +121,23 @@ class CollisionHandler(nn.Module):
         along its normal lands inside that part (repeating the push oscillates between the
         two). A stuck vertex instead takes the shortest offset among `EXIT_DIRECTIONS` ×
         `EXIT_RADII` that puts it at least ε outside (`exit_offsets`); a stuck face's three
-        vertices take the offset that puts its centroid ε_c outside. The offsets are constants
-        in the gradient (x* stays differentiable in x). Up to `FREE_ROUNDS` rounds, each checking
-        the vertices moved and the faces around them again.
+        vertices take the offset that puts its centroid ε_c outside; a vertex of several takes
+        the longest (`longest_per_row`). The offsets are constants in the gradient (x* stays
+        differentiable in x). Up to `FREE_ROUNDS` rounds, each checking the vertices moved and the
+        faces around them again; over all rounds no vertex moves farther than the longest exit
+        radius. What finds no way out that near (cloth caught where an arm is pressed into the
+        torso: a static drape cannot free it) stays inside, and B2G says so, rather than the
+        garment being torn toward some distant exit.
         """
+        start = x.detach()
+        reach = EXIT_RADII[-1]
         candidates = torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
         candidates[suspects] = True
         for _ in range(FREE_ROUNDS):
             rows = torch.nonzero(candidates).flatten()
             with torch.no_grad():
                 stuck = rows[bodies.query(x[rows].detach(), body_index=body_index[rows]).inside]
-                shift = torch.zeros_like(x)
-                if stuck.numel():
-                    shift[stuck] = exit_offsets(x[stuck].detach(), bodies, body_index[stuck], self.margin)
+                offsets = exit_offsets(x[stuck].detach(), bodies, body_index[stuck], self.margin)
                 if faces is not None:
                     near = faces[candidates[faces].any(dim=1)]
                     centroids = x[near].detach().mean(dim=1)
@@ -141,20 +145,42 @@ class CollisionHandler(nn.Module):
                     if flat.shape[0]:
                         offset = exit_offsets(x[flat].detach().mean(dim=1), bodies, body_index[flat[:, 0]],
                                               self.centroid_margin or self.margin)
-                        shift.index_add_(0, flat.reshape(-1), offset.repeat_interleave(3, dim=0))
                         stuck = torch.cat([stuck, flat.reshape(-1)])
+                        offsets = torch.cat([offsets, offset.repeat_interleave(3, dim=0)])
             if not stuck.numel():
                 break
+            with torch.no_grad():
+                moved = x.detach() + longest_per_row(stuck, offsets, x.shape[0]) - start
+                length = moved.norm(dim=1, keepdim=True)
+                moved = moved * (reach / length.clamp_min(reach))  # at most `reach` from where it started
+                shift = start + moved - x.detach()
             x = x + shift
             candidates = torch.zeros_like(candidates)
             candidates[stuck] = True
         return x
 
 
+@torch.no_grad()
+def longest_per_row(rows: Tensor, offsets: Tensor, num_rows: int) -> Tensor:
+    """A (num_rows, 3) field that gives each row of `rows` (M,) int64 the longest of its offsets
+    (M, 3) (on a tie the first given) and every other row zero. A vertex stuck itself and in
+    several stuck faces takes one offset, the farthest any of them asks for: their sum would
+    carry it as many times as far."""
+    length = offsets.norm(dim=1)
+    order = torch.argsort(length, descending=True, stable=True)
+    order = order[torch.argsort(rows[order], stable=True)]  # by row, longest first within a row
+    ranked = rows[order]
+    first = torch.ones_like(ranked, dtype=torch.bool)
+    first[1:] = ranked[1:] != ranked[:-1]
+    field = offsets.new_zeros(num_rows, 3)
+    field[ranked[first]] = offsets[order[first]]
+    return field
+
+
 #: Rounds of `CollisionHandler._free_stuck`.
 FREE_ROUNDS = 3
 #: Offsets [m] tried for a point stuck inside the body, shortest first.
-EXIT_RADII = (2e-3, 4e-3, 8e-3, 16e-3, 32e-3)
+EXIT_RADII = (2e-3, 4e-3, 8e-3)
 
 
 def _exit_directions() -> Tensor:
@@ -175,7 +201,9 @@ EXIT_DIRECTIONS = _exit_directions()
 def exit_offsets(points: Tensor, bodies: BodySurface, body_index: Tensor, clearance: float) -> Tensor:
     """For each point (M, 3) inside the body, the shortest offset (M, 3) [m] among
     `EXIT_DIRECTIONS` × `EXIT_RADII` that puts it at least `clearance` outside; where none does,
-    the one that ends farthest out."""
+    the one that ends farthest out if that is outside at all, else zero: a point with no way out
+    within the longest radius (cloth caught where an arm presses into the torso) stays where it
+    is instead of being thrown a few centimetres into the body's overlap."""
     dirs = EXIT_DIRECTIONS.to(points)
     radii = torch.tensor(EXIT_RADII, dtype=points.dtype, device=points.device)
     steps = (radii[:, None, None] * dirs[None]).reshape(-1, 3)  # radius-major: shortest first
@@ -189,4 +217,7 @@ def exit_offsets(points: Tensor, bodies: BodySurface, body_index: Tensor, cleara
     shortest = reached.to(torch.int8).argmax(dim=1)
     at = depth[torch.arange(points.shape[0], device=points.device), shortest]
     best = shortest * dirs.shape[0] + at.argmax(dim=1)
-    return steps[torch.where(reached.any(dim=1), best, depth.flatten(1).argmax(dim=1))]
+    farthest = depth.flatten(1).argmax(dim=1)
+    offsets = steps[torch.where(reached.any(dim=1), best, farthest)]
+    out = depth.flatten(1).amax(dim=1) > 0  # some trial at least leaves the body
+    return torch.where(out[:, None], offsets, torch.zeros_like(offsets))
