@@ -146,7 +146,7 @@ def main() -> None:
         x32 = x64.float().contiguous()
         body_idx = torch.zeros(n, dtype=torch.int32)
         rows.append((f"[{method.value}]   of which Warp BVH search",
-                     f"{median_ms_nowarm(lambda: surface._search(x32, body_idx), args.repeats):9.2f} ms"))
+                     f"{median_ms_nowarm(lambda: surface.search(x32, body_idx), args.repeats):9.2f} ms"))
 
     # Batch of 4 bodies (B, N, 3).
     batch = torch.stack([verts, moved, verts * 1.02, moved * 0.98])

@@ -61,3 +61,30 @@ def test_warm_modes(tiny_checkpoint, anny_cmu_body):
         np.testing.assert_allclose(a.verts, b.verts, atol=1e-6)
     with pytest.raises(DrapeError, match="warm_start must be"):
         Motion(BVH_FILES[0], frames=(0, 2), warm_start="yes")
+
+
+@pytest.mark.anny
+@needs_data
+@needs_anny
+def test_a_motions_arms_are_turned_out_where_they_hang_against_the_torso(tiny_checkpoint, anny_cmu_body):
+    """Frame 100 of 131_01 hangs its arms against the torso: by default they are turned out at the
+    shoulders (and the result says by how much); with clear_arms=False the frame is draped as
+    recorded, and a drape that ends partly inside the body says so with a DrapeWarning."""
+    import warnings
+
+    from physdrape.api import Draper, DrapeWarning
+
+    path = BVH_DIR / "131_01.bvh"
+    if not path.is_file():
+        pytest.skip(f"no {path}")
+    draper = Draper(tiny_checkpoint, steps=2, body=anny_cmu_body)
+    [turned] = draper.drape("default", pose=Motion(path, frames=100))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DrapeWarning)
+        [kept] = draper.drape("default", pose=Motion(path, frames=100, clear_arms=False))
+    assert kept.arms_turned_out_deg is None and "arms_turned_out_deg" not in kept.report()
+    assert len(turned.arms_turned_out_deg) == 2 and max(turned.arms_turned_out_deg) > 0
+    assert turned.report()["arms_turned_out_deg"] == list(turned.arms_turned_out_deg)
+    assert np.abs(turned.body_verts - kept.body_verts).max() > 0.01  # the turned body is the one draped on
+    inside = [w for w in caught if issubclass(w.category, DrapeWarning) and "inside the body" in str(w.message)]
+    assert bool(inside) == (kept.metrics["b2g_percent"] > 0)

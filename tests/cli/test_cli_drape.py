@@ -95,6 +95,20 @@ def test_bvh_frames_warm_started_or_batched(bundled, tmp_path):
     assert [e["init"] for e in results] == ["skinning", "skinning"] and results[0]["timings_s"]["batch_size"] == 2
 
 
+@pytest.mark.skipif(not BVH_FILES, reason=f"no CMU BVH files in {BVH_DIR}")
+def test_bvh_frames_have_their_arms_turned_out_unless_kept(bundled, tmp_path):
+    path = BVH_DIR / "131_01.bvh"  # its frame 100 hangs the arms against the torso
+    if not path.is_file():
+        pytest.skip(f"no {path}")
+    out = tmp_path / "turned"
+    assert main(["drape", "--bvh", str(path), "--frame", "100", "--out", str(out), *FAST]) == 0
+    [entry] = _report(out)["results"]
+    assert len(entry["arms_turned_out_deg"]) == 2 and max(entry["arms_turned_out_deg"]) > 0
+    kept = tmp_path / "kept"
+    assert main(["drape", "--bvh", str(path), "--frame", "100", "--keep-arms", "--out", str(kept), *FAST]) == 0
+    assert "arms_turned_out_deg" not in _report(kept)["results"][0]
+
+
 def test_fit_places_and_writes(anny_body, tmp_path, default_obj):
     from physdrape.garments import default_garment
     from physdrape.geometry.mesh import read_mesh, write_mesh

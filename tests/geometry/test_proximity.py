@@ -285,7 +285,7 @@ def test_buried_vertices_found_by_rays_then_winding_numbers_equal_winding_number
         normals = surface._vertex_pseudo_normals()[0]
         probe = (verts + PROBE_OFFSET * normals).float().contiguous()
         owner = torch.zeros(len(verts), dtype=torch.int32)
-        buried = surface._search(probe, owner, winding=True)[1]
+        buried = surface.search(probe, owner, winding=True)[1]
         buried[surface._border] = True
         reach = torch.zeros(len(verts), dtype=verts.dtype)  # each vertex's longest edge among its faces
         for face in faces.tolist():
@@ -323,7 +323,7 @@ def test_probes_whose_rays_enter_another_part_get_no_winding_number():
     owner = torch.zeros(len(verts), dtype=torch.int32)
     hits, facing = surface._bvh.ray_hits(probe, owner, normals.float().contiguous())
     assert (hits & (facing < -ENTERING)).sum() > 20 and not (hits & (facing > -ENTERING)).any()
-    assert not surface._search(probe, owner, winding=True)[1].any()
+    assert not surface.search(probe, owner, winding=True)[1].any()
     assert not surface.doubtful_faces().any()
 
 

@@ -16,7 +16,7 @@ import threading
 import time
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,7 @@ from physdrape.api.results import drape_results
 from physdrape.api.specs import BodyPose
 from physdrape.api.types import DrapeError, DrapeResult, DrapeWarning, Motion
 from physdrape.api.wear import Wear, Wearing
+from physdrape.body.arm_clearance import clear_arms
 from physdrape.body.model import BodyState
 from physdrape.body.poses import arm_torso_penetration, checks_arms
 from physdrape.devices import DeviceError, resolve_device
@@ -153,7 +154,7 @@ class Draper:
         self._canonical: dict[str, tuple[np.ndarray, BodySurface]] = {}
         self._named_poses: dict[str, list[BodyPose]] = {}
         #: the last few posed body batches (their surfaces built on first use), by rig, shapes and poses
-        self._posed: OrderedDict[tuple, PosedBodies] = OrderedDict()
+        self._posed: OrderedDict[tuple, tuple[PosedBodies, Tensor | None]] = OrderedDict()
         self._posed_lock = threading.Lock()  # a batch split between threads poses its groups side by side
 
     # ------------------------------------------------------------------ inputs
@@ -313,7 +314,7 @@ class Draper:
         wear = Wear.check(sizing=sizing, grip=grip, closures=closures, layers=layers, templates=templates)
         body_poses = [bp for p in p_specs for bp in self.poses(p)]
         if shape is not None:  # an explicit shape overrides the betas stored in AMASS frames
-            body_poses = [BodyPose(bp.rig, bp.pose, bp.label, None, bp.sequence) for bp in body_poses]
+            body_poses = [replace(bp, shape=None) for bp in body_poses]
         materials = [self.material(m) for m in m_specs]
         shape_t = self.shape(shape)
         if len({len(templates), len(body_poses), len(materials)} - {1}) > 1:
@@ -355,19 +356,29 @@ class Draper:
                 bar.close()
         return [results[i] for i in range(n)]
 
-    def _posed_bodies(self, rig: str, shapes: Tensor, poses: Tensor, labels: list[str]) -> PosedBodies:
+    def _posed_bodies(self, rig: str, shapes: Tensor, poses: Tensor, labels: list[str],
+                      clear: list[bool] | None = None) -> tuple[PosedBodies, Tensor | None]:
         """The bodies of `rig` in `shapes` and `poses`, posed and (with `check_pose`) checked for arms
-        through the torso once; the last `POSED_CACHE_SIZE` batches are kept with their surfaces."""
-        key = (rig, self.check_pose, shapes.shape, poses.shape, shapes.cpu().numpy().tobytes(), poses.cpu().numpy().tobytes())
+        through the torso once; the last `POSED_CACHE_SIZE` batches are kept with their surfaces.
+        clear: per pose, whether to turn its arms out where they press against the torso
+        (`body.arm_clearance.clear_arms`); also returns those turns (B, 2) [deg], or None."""
+        clear = clear if clear is not None and any(clear) and checks_arms(rig) else None
+        key = (rig, self.check_pose, shapes.shape, poses.shape, shapes.cpu().numpy().tobytes(),
+               poses.cpu().numpy().tobytes(), None if clear is None else tuple(clear))
         with self._posed_lock:
             if key in self._posed:
                 self._posed.move_to_end(key)
                 return self._posed[key]
         body = self.body(rig)
         state = body(shapes.to(self.device), poses.to(self.device))  # posed where the drape runs
+        turns = None
+        if clear is not None:
+            turned, turns = clear_arms(body, state, poses.to(self.device), rows=torch.tensor(clear))
+            if bool((turns > 0).any()):
+                state = body(shapes.to(self.device), turned)
         if self.check_pose and checks_arms(rig):
             self._refuse_penetrating_poses(state, body, labels)
-        posed = PosedBodies(state)
+        posed = (PosedBodies(state), turns)
         with self._posed_lock:
             self._posed[key] = posed
             while len(self._posed) > POSED_CACHE_SIZE:
@@ -413,7 +424,8 @@ class Draper:
         slot = {pose_id: k for k, pose_id in enumerate(poses)}
         pose_t = torch.cat([p.pose for p in poses.values()]).to(POSE_DTYPE)
         shapes = torch.cat([shape if p.shape is None else p.shape for p in poses.values()]).to(POSE_DTYPE)
-        posed = self._posed_bodies(rig, shapes, pose_t, [p.label for p in poses.values()])
+        posed, turns = self._posed_bodies(rig, shapes, pose_t, [p.label for p in poses.values()],
+                                          [p.clear_arms for p in poses.values()])
         state = posed.state
         t1 = time.perf_counter()
         pipeline_jobs, following = [], []
@@ -453,8 +465,10 @@ class Draper:
         timings = {"body_s": t1 - t0, "init_s": t2 - t1, "model_s": t3 - t2, "trace_s": t3b - t3, "refine_s": t4 - t3b,
                    "metrics_s": t5 - t4, "total_s": t5 - t0, "batch_size": float(len(jobs))}
         timings["per_garment_s"] = timings["total_s"] / len(jobs)
-        for r in results:
+        for r, job in zip(results, jobs):
             r.timings = dict(timings)
+            if turns is not None and bool((turns[slot[job.pose_id]] > 0).any()):
+                r.arms_turned_out_deg = tuple(float(a) for a in turns[slot[job.pose_id]])
         xs = inp.garments.split(x)
         nxt = [None if t is None else _Warm(xs[k].to(device=t.device, dtype=POSE_DTYPE), t)
                for k, t in enumerate(following)]

@@ -31,6 +31,17 @@ def crossings_warned(names: list[str], verts: list[np.ndarray], faces: list[np.n
     return crossings
 
 
+def inside_warned(names: list[str], poses: list[str], b2g_percent: list[float]) -> None:
+    """A `DrapeWarning` for each drape that ends with part of its area inside the body (B2G > 0)."""
+    for name, pose, share in zip(names, poses, b2g_percent):
+        if share > 0:
+            warnings.warn(f"{name} [{pose}]: {share:.2g} % of its area ends inside the body (B2G). Where two parts of "
+                          "the posed body press into each other (an arm against the torso, a hand on a thigh) the "
+                          "cloth caught between them has no way out in a static drape: choose a pose with the arms "
+                          "off the body (a motion's frames are turned out at the shoulders unless "
+                          "Motion(clear_arms=False), CLI --keep-arms)", DrapeWarning, stacklevel=4)
+
+
 def drape_results(jobs, body_of: list[int], inp: DrapeInput, x: Tensor, state: BodyState, convergence: list[dict],
                   warm, bound: DistanceBound | None, *, dtype: torch.dtype) -> list[DrapeResult]:
     """One `DrapeResult` per job of a batch draped to x (timings filled in by the caller).
@@ -46,6 +57,7 @@ def drape_results(jobs, body_of: list[int], inp: DrapeInput, x: Tensor, state: B
     inits, body_faces = batch.split(inp.x_init), state.faces.cpu().numpy().astype(np.int64)
     xs = [v.cpu().numpy() for v in batch.split(x)]
     crossings = crossings_warned([j.template.name for j in jobs], xs, [j.template.faces for j in jobs])
+    inside_warned([j.template.name for j in jobs], [j.pose.label for j in jobs], metrics["b2g_percent"])
     return [DrapeResult(
         name=job.template.name,
         verts=xs[k],

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
+from dataclasses import replace
 
 import torch
 from torch import Tensor
@@ -34,7 +35,7 @@ def tag_frames(motion: Motion, poses: list[BodyPose]) -> list[BodyPose]:
         return poses
     sequence = next(_SEQUENCE_IDS)
     mode = "solver" if motion.warm_start is True else str(motion.warm_start)
-    return [BodyPose(bp.rig, bp.pose, bp.label, bp.shape, (sequence, k, mode)) for k, bp in enumerate(poses)]
+    return [replace(bp, sequence=(sequence, k, mode)) for k, bp in enumerate(poses)]
 
 
 def predecessors(poses: Sequence[BodyPose], template_keys: Sequence[str]) -> list[int | None]:

@@ -35,13 +35,15 @@ DEFAULT_POSE = "relaxed"
 class BodyPose:
     """One pose to drape on: `pose` (1, J, 3) axis-angles [rad] on body rig `rig`, a label, and the
     pose's own body shape (1, S) (AMASS betas) or None for the call's shape. `sequence` tags the
-    frames of a warm-started motion: (sequence id, frame number, warm mode)."""
+    frames of a warm-started motion: (sequence id, frame number, warm mode). `clear_arms`: turn
+    the arms out where they press against the torso (`Motion.clear_arms`)."""
 
     rig: str
     pose: Tensor
     label: str
     shape: Tensor | None = None
     sequence: tuple[int, int, str] | None = None
+    clear_arms: bool = False
 
 
 def is_generated(text: str) -> bool:
@@ -287,8 +289,8 @@ def motion_poses(motion: Motion, body_of: Callable[[str], object], *, smpl: bool
         ret = retarget_bvh(bvh, body_of("cmu_mb"), frames=slice(start, stop))
     except ValueError as exc:
         raise DrapeError(f"cannot retarget {path.name} onto Anny: {exc}") from None
-    return [BodyPose("cmu_mb", ret.pose[i:i + 1].to(POSE_DTYPE), f"{path.name}#{start + i}")
-            for i in range(ret.pose.shape[0])]
+    return [BodyPose("cmu_mb", ret.pose[i:i + 1].to(POSE_DTYPE), f"{path.name}#{start + i}",
+                     clear_arms=motion.clear_arms) for i in range(ret.pose.shape[0])]
 
 
 def _amass_poses(motion: Motion, path: Path, body) -> list[BodyPose]:
@@ -309,7 +311,8 @@ def _amass_poses(motion: Motion, path: Path, body) -> list[BodyPose]:
     if not torch.isfinite(betas).all():
         raise DrapeError(f"AMASS file {path.name}: betas contain NaN/inf; fix the file or pass shape=β")
     shape = betas.reshape(1, -1)
-    return [BodyPose("smpl", pose[i:i + 1], f"{path.name}#{start + i}", shape) for i in range(stop - start)]
+    return [BodyPose("smpl", pose[i:i + 1], f"{path.name}#{start + i}", shape, clear_arms=motion.clear_arms)
+            for i in range(stop - start)]
 
 
 def material(spec=None) -> Material:

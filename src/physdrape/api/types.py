@@ -43,11 +43,18 @@ class Motion:
 
         False: every frame from its own skinned X_init, all in one batch (PhysDrape is static: no
         velocities, no history).
+    clear_arms: turn each arm of a frame out at the shoulder by the smallest angle that leaves its
+        distal part 2 cm from the torso (`body.arm_clearance`, as DrapeNet and SNUG do): an arm
+        hanging against the torso, as motion capture is full of, catches the cloth between them,
+        which a static drape cannot free. An arm clear already keeps its pose; each result says by
+        how much its arms were turned (`DrapeResult.arms_turned_out_deg`). False: the frames as
+        recorded (a frame whose arms pass through the torso is refused, see `Draper`).
     """
 
     path: str | Path
     frames: int | tuple[int, int] = 0
     warm_start: bool | str = True
+    clear_arms: bool = True
 
     def __post_init__(self) -> None:
         if self.warm_start not in (True, False, "solver", "model"):
@@ -77,6 +84,8 @@ class DrapeResult:
             "force": Σ_i ‖F_int,i + f̂_i‖ [N]}; empty unless drape(keep_trace=True).
         init: how X_init was made: "skinning" (the garment skinned onto this body) or "warm"
             (the previous frame's drape carried along by the body's motion, see `Motion`).
+        arms_turned_out_deg: how far (left, right) [deg] the arms of a motion's frame were turned
+            out at the shoulders to clear the torso (`Motion.clear_arms`); None: the pose as given.
     """
 
     name: str
@@ -93,6 +102,7 @@ class DrapeResult:
     inside_faces: np.ndarray
     convergence: dict[str, list[float]] = field(default_factory=dict)
     init: str = "skinning"
+    arms_turned_out_deg: tuple[float, float] | None = None
 
     def to_trimesh(self, *, with_body: bool = False):
         """The garment as a `trimesh.Trimesh` (process=False keeps the topology); with_body: a Scene."""
@@ -131,6 +141,7 @@ class DrapeResult:
             "residual_force_N": self.metrics["residual_force"],
             "residual_relative": self.metrics["residual_relative"],
             "init": self.init,
+            **({} if self.arms_turned_out_deg is None else {"arms_turned_out_deg": list(self.arms_turned_out_deg)}),
             "timings_s": self.timings,
         }
 

@@ -136,15 +136,26 @@ def checks_arms(rig: str) -> bool:
     return rig in _ARM_BONES
 
 
-def _arm_sets(body) -> tuple[Tensor, Tensor]:
+def proximal_arm_bones(rig: str) -> tuple[str, ...]:
+    """The names (prefixes) of the bones that turn the whole arm on body rig `rig`."""
+    return _ARM_BONES[rig][0]
+
+
+def arm_bones(body) -> tuple[Tensor, Tensor]:
+    """Per joint of `body`'s rig, whether it is a distal arm bone, and whether an arm bone at all
+    (J,) bool each."""
+    proximal, distal = _ARM_BONES[body.rig]
+    names = body.joint_names
+    is_distal = torch.tensor([any(k in n for k in distal) for n in names])
+    return is_distal, is_distal | torch.tensor([any(n.startswith(k) for k in proximal) for n in names])
+
+
+def arm_sets(body) -> tuple[Tensor, Tensor]:
     """(query vertex ids on the distal arms, face mask of the non-arm 'torso' surface)."""
     cache = body.__dict__.setdefault("_arm_sets_cache", {})
     if "v" in cache:
         return cache["v"], cache["f"]
-    proximal, distal = _ARM_BONES[body.rig]
-    names = body.joint_names
-    is_distal = torch.tensor([any(k in n for k in distal) for n in names])
-    is_arm = is_distal | torch.tensor([any(n.startswith(k) for k in proximal) for n in names])
+    is_distal, is_arm = arm_bones(body)
     part = body.vertex_part()
     query = torch.nonzero(is_distal[part]).squeeze(1)
     torso_faces = ~is_arm[part][body.faces].any(1)
@@ -179,24 +190,24 @@ def arm_torso_penetration(body_state: BodyState, body=None, *, stride: int = 4,
             f"body_state has {body_state.verts.shape[1]} vertices but the {body.rig!r} Anny body "
             f"has {body.num_verts}; pass the body that produced the state"
         )
-    query, torso = _arm_sets(body)
+    query, torso = arm_sets(body)
     with torch.no_grad():
         verts = body_state.verts.to(device=device, dtype=torch.float32)
-        with _TORSO_LOCK:
-            surface = _torso_surface(body, torso, verts)
+        with TORSO_LOCK:
+            surface = torso_surface(body, torso, verts)
             inside = surface.inside(verts[:, query[::stride].to(verts.device)])
     return inside.sum(dim=1).cpu()
 
 
-#: Guards the torso surfaces `_torso_surface` keeps (poses checked on parallel threads share them).
-_TORSO_LOCK = threading.Lock()
+#: Guards the torso surfaces `torso_surface` keeps (poses checked on parallel threads share them).
+TORSO_LOCK = threading.Lock()
 
 
-def _torso_surface(body, torso: Tensor, verts: Tensor):
+def torso_surface(body, torso: Tensor, verts: Tensor):
     """The non-arm surface of `body` at posed vertices (B, Vb, 3) float32: built once per batch
     size and device, then refitted to each new pose (a refit costs a fraction of a BVH build, and
     the check's few hundred points barely feel a tree built for another pose). Call under
-    `_TORSO_LOCK`."""
+    `TORSO_LOCK`."""
     from physdrape.geometry.proximity import BodySurface
 
     cache = body.__dict__.setdefault("_torso_surfaces", {})

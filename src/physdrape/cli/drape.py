@@ -119,11 +119,11 @@ def _motion(path: str, args) -> Motion:
     mode = "off" if args.no_warm_start else (args.warm_start or "solver")
     warm = False if mode == "off" else mode
     if args.frames is not None:
-        return Motion(path, _parse_frames(args.frames), warm_start=warm)
+        return Motion(path, _parse_frames(args.frames), warm_start=warm, clear_arms=not args.keep_arms)
     frame = 0 if args.frame is None else args.frame
     if frame < 0:
         raise CLIError(f"--frame must be >= 0, got {frame}")
-    return Motion(path, frame, warm_start=warm)
+    return Motion(path, frame, warm_start=warm, clear_arms=not args.keep_arms)
 
 
 def _theta(path_text: str) -> np.ndarray:
@@ -274,7 +274,8 @@ def cmd_drape(args: argparse.Namespace) -> int:
     sweep = None
     if args.figures:
         if isinstance(pose, Motion):
-            first_pose = Motion(pose.path, pose.frames if isinstance(pose.frames, int) else pose.frames[0])
+            first_pose = Motion(pose.path, pose.frames if isinstance(pose.frames, int) else pose.frames[0],
+                                clear_arms=pose.clear_arms)
         elif pose is not None and not isinstance(pose, str):  # SMPL θ array: its first pose
             first_pose = draper.poses(pose)[0].pose[0].numpy()
         else:
@@ -371,6 +372,10 @@ def add_parser(sub) -> None:
                    "model pass; drifts), off (= --no-warm-start)")
     b.add_argument("--no-warm-start", action="store_true", help="drape --frames independently, as one batch, each "
                    "from its own kinematic initialisation")
+    b.add_argument("--keep-arms", action="store_true", help="drape --bvh/--amass frames as recorded; by default an "
+                   "arm hanging against the torso is turned out at the shoulder until it stands 2 cm off it "
+                   "(the cloth caught between them has no way out in a static drape; report.json says by how "
+                   "many degrees)")
     s = drape.add_argument_group("SMPL / SMPL-X body (bring your own model file)")
     s.add_argument("--smpl-model", metavar="FILE", help="SMPL/SMPL+H/SMPL-X model .npz (or legacy .pkl), or a folder "
                    "holding SMPL_NEUTRAL.npz; drapes on that body instead of Anny")

@@ -277,8 +277,9 @@ class BodySurface:
 
     # -- queries -----------------------------------------------------------------------------
 
-    def _search(self, points32: Tensor, body: Tensor, *, winding: bool = False) -> tuple[Tensor, Tensor | None]:
-        """Warp BVH search: closest face (and, with `winding`, the winding-number inside flag) per point."""
+    def search(self, points32: Tensor, body: Tensor, *, winding: bool = False) -> tuple[Tensor, Tensor | None]:
+        """Warp BVH search: closest face (M,) int64 (and, with `winding`, the winding-number inside
+        flag (M,) bool) of points32 (M, 3) float32 of bodies `body` (M,) int32, both contiguous."""
         return self._bvh.closest_faces(points32, body, winding_accuracy=self.winding_accuracy,
                                        threads=self.search_threads, winding=winding)
 
@@ -452,7 +453,7 @@ class BodySurface:
         wn_inside = side < 0
         if bool(unknown.any()):
             ask = doubt[unknown]
-            wn_inside[unknown] = self._search(points32(ask).contiguous(), body[ask].contiguous(), winding=True)[1]
+            wn_inside[unknown] = self.search(points32(ask).contiguous(), body[ask].contiguous(), winding=True)[1]
         # off the surface the normal points away from the inside
         flip = 1 - 2 * ((wn_inside != inside[doubt]) & ~near[doubt]).to(torch.int8)
         return doubt, wn_inside, flip
@@ -483,7 +484,7 @@ class BodySurface:
         if self.sign_method is not SignMethod.WINDING_NUMBER:
             raise ValueError("inside() needs sign_method=WINDING_NUMBER")
         x, body, lead = packed_points(points, body_index, self.verts)
-        inside = self._search(x.to(torch.float32).contiguous(), body.to(torch.int32).contiguous(), winding=True)[1]
+        inside = self.search(x.to(torch.float32).contiguous(), body.to(torch.int32).contiguous(), winding=True)[1]
         return inside.reshape(lead)
 
 
