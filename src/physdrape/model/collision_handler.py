@@ -33,7 +33,9 @@ class CollisionHandler(nn.Module):
 
     Where two parts of a posed body interpenetrate, a push along the normal can land inside the
     other part; what was inside before the handler is checked again after these passes and moved
-    out by the shortest of a set of offsets (`_free_stuck`).
+    out by the shortest of a set of offsets of a few millimetres (`_free_stuck`); what is still
+    inside then goes back where it was (cloth caught deep between two parts pressed together,
+    which no push frees: pushing it only tears it from its neighbours).
 
     A multi-piece garment's layer order (`physics.layers`) is the last pass (when `layers` are
     given): a push that moves an inner piece's vertex out toward the piece over it would leave
@@ -87,6 +89,7 @@ class CollisionHandler(nn.Module):
             suspects = torch.cat([suspects, faces[dipped].reshape(-1)])
         if suspects.numel():
             x = self._free_stuck(x, faces, bodies, body_index, suspects)
+            x = _trapped_left_where_they_were(x, before, bodies, body_index, suspects)
         if layers is not None and len(layers.pairs):
             x = push_outer_out(x, layers, allowed=layer_shortfall(before, layers))
         return x
@@ -126,7 +129,8 @@ class CollisionHandler(nn.Module):
         differentiable in x). Up to `FREE_ROUNDS` rounds, each checking the vertices moved and the
         faces around them again; over all rounds no vertex moves farther than the longest exit
         radius. What finds no way out that near (cloth caught where an arm is pressed into the
-        torso: a static drape cannot free it) stays inside, and B2G says so, rather than the
+        torso, or between the thighs: a static drape cannot free it) is not moved here, and
+        `forward` puts it back where it was before the handler: B2G says so, rather than the
         garment being torn toward some distant exit.
         """
         start = x.detach()
@@ -160,6 +164,23 @@ class CollisionHandler(nn.Module):
         return x
 
 
+def _trapped_left_where_they_were(x: Tensor, before: Tensor, bodies: BodySurface, body_index: Tensor,
+                                  suspects: Tensor) -> Tensor:
+    """x with the vertices of `suspects` that are still inside the body back where they were
+    before the handler (`before`). What neither the push along the normal nor an exit offset got
+    out lies where two parts of the body sink into each other (cloth caught between the thighs, or
+    between an arm and the torso): the push there only carries a vertex from one part into the
+    other, opposite to its neighbours', and tears the cloth."""
+    rows = torch.unique(suspects)
+    with torch.no_grad():
+        trapped = rows[bodies.query(x[rows].detach(), body_index=body_index[rows]).inside]
+    if not trapped.numel():
+        return x
+    mask = torch.zeros(x.shape[0], 1, dtype=torch.bool, device=x.device)
+    mask[trapped] = True
+    return torch.where(mask, before, x)
+
+
 @torch.no_grad()
 def longest_per_row(rows: Tensor, offsets: Tensor, num_rows: int) -> Tensor:
     """A (num_rows, 3) field that gives each row of `rows` (M,) int64 the longest of its offsets
@@ -180,7 +201,7 @@ def longest_per_row(rows: Tensor, offsets: Tensor, num_rows: int) -> Tensor:
 #: Rounds of `CollisionHandler._free_stuck`.
 FREE_ROUNDS = 3
 #: Offsets [m] tried for a point stuck inside the body, shortest first.
-EXIT_RADII = (2e-3, 4e-3, 8e-3)
+EXIT_RADII = (2e-3, 4e-3)
 
 
 def _exit_directions() -> Tensor:
@@ -202,8 +223,8 @@ def exit_offsets(points: Tensor, bodies: BodySurface, body_index: Tensor, cleara
     """For each point (M, 3) inside the body, the shortest offset (M, 3) [m] among
     `EXIT_DIRECTIONS` × `EXIT_RADII` that puts it at least `clearance` outside; where none does,
     the one that ends farthest out if that is outside at all, else zero: a point with no way out
-    within the longest radius (cloth caught where an arm presses into the torso) stays where it
-    is instead of being thrown a few centimetres into the body's overlap."""
+    within the longest radius (cloth caught where an arm presses into the torso) is not thrown
+    across the body's overlap."""
     dirs = EXIT_DIRECTIONS.to(points)
     radii = torch.tensor(EXIT_RADII, dtype=points.dtype, device=points.device)
     steps = (radii[:, None, None] * dirs[None]).reshape(-1, 3)  # radius-major: shortest first
