@@ -57,6 +57,8 @@ def test_an_arm_against_the_torso_is_turned_out_until_it_clears_the_gap(anny_bod
         surface = torso_surface(anny_body, arm_sets(anny_body)[1], after.verts.to(torch.float32))
         gap = standoff(surface, after.verts[:, query[::STRIDE]].to(torch.float64))
     assert float(gap.min()) >= ARM_GAP - 1e-4
+    # a gap no turn reaches: the turn that leaves the arm farthest off, here the largest
+    assert abduction_angles(anny_body, state, gap=1.0).tolist() == [[ANGLES_DEG[-1], ANGLES_DEG[-1]]]
 
 
 @pytest.mark.anny

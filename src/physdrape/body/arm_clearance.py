@@ -63,14 +63,16 @@ def shoulder_joints(body) -> tuple[int, int]:
 @torch.no_grad()
 def abduction_angles(body, state: BodyState, *, gap: float = ARM_GAP) -> Tensor:
     """Per posed body of `state` (B bodies of `body`) and arm (left, right), the smallest angle of
-    `ANGLES_DEG` [deg] that puts the arm's measured vertices (`_distal_arms`) `gap` [m] from the rest of the body,
-    (B, 2) float64 (the largest where none does). The angles are tried a few at a time, in
-    order, until every arm has one."""
+    `ANGLES_DEG` [deg] that puts the arm's measured vertices (`_distal_arms`) `gap` [m] from the
+    rest of the body, (B, 2) float64; where none does, the one that leaves the arm farthest off
+    (an arm held across the body may not clear it by turning out). The angles are tried a few
+    at a time, in order, until every arm has one."""
     from physdrape.body.poses import TORSO_LOCK, arm_sets, torso_surface
 
     arms = _arms(body, state)
     angles = torch.tensor(ANGLES_DEG, dtype=torch.float64, device=state.verts.device)
-    found = torch.full((state.batch_size, 2), len(ANGLES_DEG) - 1, dtype=torch.int64)
+    found = torch.zeros(state.batch_size, 2, dtype=torch.int64)
+    best = torch.full((state.batch_size, 2), -torch.inf, dtype=torch.float64)  # the farthest off so far
     todo = torch.ones(state.batch_size, 2, dtype=torch.bool)
     with TORSO_LOCK:
         surface = torso_surface(body, arm_sets(body)[1], state.verts.to(torch.float32))
@@ -81,9 +83,13 @@ def abduction_angles(body, state: BodyState, *, gap: float = ARM_GAP) -> Tensor:
             distance = standoff(surface, torch.cat([t.flatten(1, 2) for t in trials], dim=1))
             per_side = distance.split([t.shape[1] * t.shape[2] for t in trials], dim=1)
             for side, (t, d) in enumerate(zip(trials, per_side)):
-                clear = d.reshape(t.shape[:3]).amin(dim=2) >= gap  # (B, A)
-                hit = todo[:, side] & clear.any(dim=1).cpu()
-                found[hit, side] = lo + clear.to(torch.int8).argmax(dim=1).cpu()[hit]
+                off = d.reshape(t.shape[:3]).amin(dim=2).cpu()  # (B, A): each angle's nearest point
+                farther = todo[:, side] & (off.amax(dim=1) > best[:, side])
+                found[farther, side] = lo + off.argmax(dim=1)[farther]
+                best[farther, side] = off.amax(dim=1)[farther]
+                clear = off >= gap
+                hit = todo[:, side] & clear.any(dim=1)
+                found[hit, side] = lo + clear.to(torch.int8).argmax(dim=1)[hit]
                 todo[hit, side] = False
             if not bool(todo.any()):
                 break
