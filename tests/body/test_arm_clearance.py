@@ -10,7 +10,7 @@ from physdrape.body.arm_clearance import (
     ANGLES_DEG,
     ARM_GAP,
     STRIDE,
-    _distal_arms,
+    _arm_vertices,
     abduction_angles,
     clear_arms,
     shoulder_joints,
@@ -52,7 +52,7 @@ def test_an_arm_against_the_torso_is_turned_out_until_it_clears_the_gap(anny_bod
     from physdrape.body.arm_clearance import standoff
     from physdrape.body.poses import TORSO_LOCK, torso_surface
 
-    query, _ = _distal_arms(anny_body)
+    query, _ = _arm_vertices(anny_body)
     with TORSO_LOCK:
         surface = torso_surface(anny_body, arm_sets(anny_body)[1], after.verts.to(torch.float32))
         gap = standoff(surface, after.verts[:, query[::STRIDE]].to(torch.float64))
@@ -73,7 +73,7 @@ def test_the_turn_measured_is_the_turn_posed(anny_body):
     state = anny_body(shape, pose)
     out, angles = clear_arms(anny_body, state, pose)
     after = anny_body(shape, out)
-    query, sides = _distal_arms(anny_body)
+    query, sides = _arm_vertices(anny_body)
     for side, (arm, head, direction, outward) in enumerate(_arms(anny_body, state)):
         turn = abduction(direction, outward, angles[:, side:side + 1].to(direction))[:, 0]
         predicted = head[:, None] + arm @ turn.transpose(-1, -2)

@@ -35,11 +35,10 @@ def inside_warned(names: list[str], poses: list[str], b2g_percent: list[float]) 
     """A `DrapeWarning` for each drape that ends with part of its area inside the body (B2G > 0)."""
     for name, pose, share in zip(names, poses, b2g_percent):
         if share > 0:
-            warnings.warn(f"{name} [{pose}]: {share:.2g} % of its area ends inside the body (B2G). Where two parts of "
-                          "the posed body press into each other (an arm against the torso, a hand on a thigh) the "
-                          "cloth caught between them has no way out in a static drape: choose a pose with the arms "
-                          "off the body (a motion's frames are turned out at the shoulders unless "
-                          "Motion(clear_arms=False), CLI --keep-arms)", DrapeWarning, stacklevel=4)
+            warnings.warn(f"{name} [{pose}]: {share:.2g} % of its area ends inside the body (B2G), cloth caught where "
+                          "two parts of the posed body press together (an arm against the torso, the thighs), which "
+                          "a static drape cannot free: a pose with the limbs apart avoids it (docs/sequences.md)",
+                          DrapeWarning, stacklevel=4)
 
 
 def drape_results(jobs, body_of: list[int], inp: DrapeInput, x: Tensor, state: BodyState, convergence: list[dict],

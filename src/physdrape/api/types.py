@@ -43,12 +43,13 @@ class Motion:
 
         False: every frame from its own skinned X_init, all in one batch (PhysDrape is static: no
         velocities, no history).
-    clear_arms: turn each arm of a frame out at the shoulder by the smallest angle that leaves its
-        distal part 2 cm from the torso (`body.arm_clearance`, as DrapeNet and SNUG do): an arm
-        hanging against the torso, as motion capture is full of, catches the cloth between them,
-        which a static drape cannot free. An arm clear already keeps its pose; each result says by
-        how much its arms were turned (`DrapeResult.arms_turned_out_deg`). False: the frames as
-        recorded (a frame whose arms pass through the torso is refused, see `Draper`).
+    clear_arms: turn each arm of a frame out at the shoulder by the smallest angle that puts it,
+        from 10 cm below the shoulder on, 2 cm off the rest of the body (`body.arm_clearance`, as
+        DrapeNet and SNUG do): an arm hanging against the torso, as motion capture is full of,
+        catches the cloth between them, which a static drape cannot free. An arm clear already
+        keeps its pose; each result says by how much its arms were turned
+        (`DrapeResult.arms_turned_out_deg`). False: the frames as recorded (a frame whose arms
+        pass through the torso is refused, see `Draper`).
     """
 
     path: str | Path

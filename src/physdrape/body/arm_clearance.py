@@ -8,12 +8,12 @@ smallest angle that puts the arm, from a hand's width below the shoulder to the 
 least `gap` from the rest of the body.
 
 Each arm is turned about its shoulder joint's head, in the plane of the arm and the line between
-the shoulders, away from the torso. The arm's vertices follow that turn rigidly (they are skinned to the
-turned bone and those below it), so each candidate angle is measured by
-turning those points, without posing the body again; the torso's surface does not move. The
-angle is the first of `ANGLES_DEG` whose turned points all clear the gap (the largest where none
-does), and the pose is changed only where that angle is not 0: an arm already clear keeps its
-pose bit for bit.
+the shoulders, away from the torso. The arm's vertices follow that turn rigidly (they are skinned
+to the turned bone and those below it), so each candidate angle is measured by turning those
+points, without posing the body again; the torso's surface does not move. The angle is the first
+of `ANGLES_DEG` whose turned points all clear the gap (where none does, the one that leaves the
+arm farthest off), and the pose is changed only where that angle is not 0: an arm already clear
+keeps its pose bit for bit.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def shoulder_joints(body) -> tuple[int, int]:
 @torch.no_grad()
 def abduction_angles(body, state: BodyState, *, gap: float = ARM_GAP) -> Tensor:
     """Per posed body of `state` (B bodies of `body`) and arm (left, right), the smallest angle of
-    `ANGLES_DEG` [deg] that puts the arm's measured vertices (`_distal_arms`) `gap` [m] from the
+    `ANGLES_DEG` [deg] that puts the arm's measured vertices (`_arm_vertices`) `gap` [m] from the
     rest of the body, (B, 2) float64; where none does, the one that leaves the arm farthest off
     (an arm held across the body may not clear it by turning out). The angles are tried a few
     at a time, in order, until every arm has one."""
@@ -101,10 +101,10 @@ _CHUNK = 4
 
 
 def _arms(body, state: BodyState) -> list[tuple[Tensor, Tensor, Tensor, Tensor]]:
-    """Per arm (left, right) of the posed bodies: its measured distal vertices relative to its
-    shoulder joint's head (B, P, 3), that head (B, 3), the arm's mean direction (B, 3) and the
-    outward direction from the other shoulder (B, 3), float64."""
-    query, sides = _distal_arms(body)
+    """Per arm (left, right) of the posed bodies: its measured vertices (every `STRIDE`-th of
+    `_arm_vertices`) relative to its shoulder joint's head (B, P, 3), that head (B, 3), the arm's
+    mean direction (B, 3) and the outward direction from the other shoulder (B, 3), float64."""
+    query, sides = _arm_vertices(body)
     left, right = shoulder_joints(body)
     verts, heads = state.verts.to(torch.float64), state.joints.to(torch.float64)
     out = []
@@ -171,7 +171,7 @@ def clear_arms(body, state: BodyState, pose: Tensor, *, rows: Tensor | None = No
     return out, angles
 
 
-def _distal_arms(body) -> tuple[Tensor, Tensor]:
+def _arm_vertices(body) -> tuple[Tensor, Tensor]:
     """The measured arm vertices of `body`: those skinned mostly to an arm bone
     (`poses.arm_bones`) at least `SHOULDER_REACH` from their shoulder joint's head on the
     canonical body (a distance the arm's turns keep), and each one's side (0 left, 1 right);
