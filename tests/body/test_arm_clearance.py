@@ -57,6 +57,15 @@ def test_an_arm_against_the_torso_is_turned_out_until_it_clears_the_gap(anny_bod
         surface = torso_surface(anny_body, arm_sets(anny_body)[1], after.verts.to(torch.float32))
         gap = standoff(surface, after.verts[:, query[::STRIDE]].to(torch.float64))
     assert float(gap.min()) >= ARM_GAP - 1e-4
+    # the smallest whole degree: one degree less leaves some of the arm within the gap
+    from physdrape.body.arm_clearance import _arms, _nearest
+    from physdrape.body.poses import TORSO_LOCK as LOCK
+
+    with LOCK:
+        surface = torso_surface(anny_body, arm_sets(anny_body)[1], state.verts.to(torch.float32))
+        near = _nearest(surface, _arms(anny_body, state), [angles[:, 0:1] - 1.0, angles[:, 1:2] - 1.0])
+        at = _nearest(surface, _arms(anny_body, state), [angles[:, 0:1], angles[:, 1:2]])
+    assert all(float(n.max()) < ARM_GAP for n in near) and all(float(a.min()) >= ARM_GAP for a in at)
     # a gap no turn reaches: the turn that leaves the arm farthest off, here the largest
     assert abduction_angles(anny_body, state, gap=1.0).tolist() == [[ANGLES_DEG[-1], ANGLES_DEG[-1]]]
 

@@ -26,7 +26,8 @@ from physdrape.geometry.closest_point import closest_point_on_indexed_triangles
 
 #: Gap [m] between an arm and the rest of the body that `clear_arms` makes.
 ARM_GAP = 0.02
-#: The abductions tried, in order [deg]; the last is the most any arm is turned.
+#: The abductions tried first, in order [deg] (then the whole degrees below the first that clears);
+#: the last is the most any arm is turned.
 ANGLES_DEG = tuple(float(a) for a in range(0, 46, 3))
 #: Every `STRIDE`-th of those arm vertices is measured (as the arm–torso check samples them).
 STRIDE = 4
@@ -62,15 +63,16 @@ def shoulder_joints(body) -> tuple[int, int]:
 
 @torch.no_grad()
 def abduction_angles(body, state: BodyState, *, gap: float = ARM_GAP) -> Tensor:
-    """Per posed body of `state` (B bodies of `body`) and arm (left, right), the smallest angle of
-    `ANGLES_DEG` [deg] that puts the arm's measured vertices (`_arm_vertices`) `gap` [m] from the
-    rest of the body, (B, 2) float64; where none does, the one that leaves the arm farthest off
-    (an arm held across the body may not clear it by turning out). The angles are tried a few
-    at a time, in order, until every arm has one."""
+    """Per posed body of `state` (B bodies of `body`) and arm (left, right), the smallest whole
+    degree up to `ANGLES_DEG[-1]` that puts the arm's measured vertices (`_arm_vertices`) `gap`
+    [m] from the rest of the body, (B, 2) float64; where none does, the angle of `ANGLES_DEG`
+    that leaves the arm farthest off (an arm held across the body may not clear it by turning
+    out). The angles of `ANGLES_DEG` are tried a few at a time, in order, until every arm has
+    one; then the degrees between the first that clears and the one before it."""
     from physdrape.body.poses import TORSO_LOCK, arm_sets, torso_surface
 
     arms = _arms(body, state)
-    angles = torch.tensor(ANGLES_DEG, dtype=torch.float64, device=state.verts.device)
+    angles = torch.tensor(ANGLES_DEG, dtype=torch.float64)
     found = torch.zeros(state.batch_size, 2, dtype=torch.int64)
     best = torch.full((state.batch_size, 2), -torch.inf, dtype=torch.float64)  # the farthest off so far
     todo = torch.ones(state.batch_size, 2, dtype=torch.bool)
@@ -78,12 +80,7 @@ def abduction_angles(body, state: BodyState, *, gap: float = ARM_GAP) -> Tensor:
         surface = torso_surface(body, arm_sets(body)[1], state.verts.to(torch.float32))
         for lo in range(0, len(ANGLES_DEG), _CHUNK):
             chunk = angles[lo:lo + _CHUNK]
-            trials = [head[:, None, None] + torch.einsum("baij,bpj->bapi", abduction(direction, out, chunk), arm)
-                      for arm, head, direction, out in arms]  # per side (B, A, P, 3)
-            distance = standoff(surface, torch.cat([t.flatten(1, 2) for t in trials], dim=1))
-            per_side = distance.split([t.shape[1] * t.shape[2] for t in trials], dim=1)
-            for side, (t, d) in enumerate(zip(trials, per_side)):
-                off = d.reshape(t.shape[:3]).amin(dim=2).cpu()  # (B, A): each angle's nearest point
+            for side, off in enumerate(_nearest(surface, arms, [chunk, chunk])):  # (B, A) each
                 farther = todo[:, side] & (off.amax(dim=1) > best[:, side])
                 found[farther, side] = lo + off.argmax(dim=1)[farther]
                 best[farther, side] = off.amax(dim=1)[farther]
@@ -93,7 +90,28 @@ def abduction_angles(body, state: BodyState, *, gap: float = ARM_GAP) -> Tensor:
                 todo[hit, side] = False
             if not bool(todo.any()):
                 break
-    return angles.cpu()[found]
+        out = angles[found]
+        cleared = ~todo & (found > 0)
+        if bool(cleared.any()):  # the whole degrees below each first clearing angle, smallest first
+            below = angles[(found - 1).clamp_min(0)]
+            steps = torch.arange(1.0, float(ANGLES_DEG[1] - ANGLES_DEG[0]), dtype=torch.float64)
+            fine = [below[:, side, None] + steps for side in range(2)]  # (B, S) per side
+            for side, off in enumerate(_nearest(surface, arms, fine)):
+                clear = (off >= gap) & cleared[:, side, None]
+                hit = clear.any(dim=1)
+                out[hit, side] = fine[side][hit, clear[hit].to(torch.int8).argmax(dim=1)]
+    return out
+
+
+def _nearest(surface, arms: list[tuple[Tensor, Tensor, Tensor, Tensor]], angles: list[Tensor]) -> list[Tensor]:
+    """Per arm (`_arms`), the distance (B, A) float64 [m, CPU] from the rest of the body (the
+    `surface`) of its measured vertex nearest to it, turned out by each of its angles [deg]
+    ((A,) for every body or (B, A)): one search for both arms."""
+    trials = [head[:, None, None] + torch.einsum("baij,bpj->bapi", abduction(direction, out, turn), arm)
+              for (arm, head, direction, out), turn in zip(arms, angles)]  # per arm (B, A, P, 3)
+    distance = standoff(surface, torch.cat([t.flatten(1, 2) for t in trials], dim=1))
+    per_arm = distance.split([t.shape[1] * t.shape[2] for t in trials], dim=1)
+    return [d.reshape(t.shape[:3]).amin(dim=2).cpu() for t, d in zip(trials, per_arm)]
 
 
 #: Angles of `ANGLES_DEG` tried per search of the torso (most arms clear within the first few).
