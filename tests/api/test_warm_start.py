@@ -88,3 +88,10 @@ def test_a_motions_arms_are_turned_out_where_they_hang_against_the_torso(tiny_ch
     assert np.abs(turned.body_verts - kept.body_verts).max() > 0.01  # the turned body is the one draped on
     inside = [w for w in caught if issubclass(w.category, DrapeWarning) and "inside the body" in str(w.message)]
     assert bool(inside) == (kept.metrics["b2g_percent"] > 0)
+
+
+def test_a_motions_clear_arms_must_be_a_bool():
+    from physdrape.api import DrapeError
+
+    with pytest.raises(DrapeError, match="clear_arms must be True"):
+        Motion("walk.bvh", frames=1, clear_arms="no")

@@ -60,6 +60,9 @@ class Motion:
     def __post_init__(self) -> None:
         if self.warm_start not in (True, False, "solver", "model"):
             raise DrapeError(f"Motion warm_start must be True/'solver', 'model' or False, got {self.warm_start!r}")
+        if not isinstance(self.clear_arms, bool):
+            raise DrapeError(f"Motion clear_arms must be True (turn arms off the torso) or False (the frames as "
+                             f"recorded), got {self.clear_arms!r}")
 
 
 @dataclass
