@@ -48,14 +48,14 @@ def _side(name: str) -> int | None:
 
 def shoulder_joints(body) -> tuple[int, int]:
     """The (left, right) joints that turn the whole arm of `body`'s rig (its proximal arm bones)."""
-    from physdrape.body.poses import proximal_arm_bones
+    from physdrape.body.poses import arm_bones
 
+    is_distal, is_arm = arm_bones(body)
     found: dict[int, int] = {}
-    for j, name in enumerate(body.joint_names):
-        if any(name.startswith(k) or name.endswith(k) for k in proximal_arm_bones(body.rig)):
-            side = _side(name)
-            if side is not None:
-                found.setdefault(side, j)
+    for j in torch.nonzero(is_arm & ~is_distal)[:, 0].tolist():
+        side = _side(body.joint_names[j])
+        if side is not None:
+            found.setdefault(side, j)
     if len(found) != 2:
         raise ValueError(f"cannot find both shoulders among the {body.rig!r} rig's joints")
     return found[0], found[1]

@@ -136,11 +136,6 @@ def checks_arms(rig: str) -> bool:
     return rig in _ARM_BONES
 
 
-def proximal_arm_bones(rig: str) -> tuple[str, ...]:
-    """The names (prefixes) of the bones that turn the whole arm on body rig `rig`."""
-    return _ARM_BONES[rig][0]
-
-
 def arm_bones(body) -> tuple[Tensor, Tensor]:
     """Per joint of `body`'s rig, whether it is a distal arm bone, and whether an arm bone at all
     (J,) bool each."""
